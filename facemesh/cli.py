@@ -1,0 +1,256 @@
+"""``facemesh`` command line: a thin layer over the library.
+
+Exit codes: 0 success; 2 bad input (missing or unreadable file, no face, bad
+option values); 1 anything unexpected. No output file is left behind on failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .types import FaceMeshError
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``facemesh`` command."""
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF."
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("build", help="build the textured mesh of a face photo (.glb)")
+    b.add_argument(
+        "image", nargs="?", type=Path, help="face photo (default: the built-in sample, scikit-image's astronaut)"
+    )
+    b.add_argument("-o", "--output", type=Path, required=True, help="output .glb")
+    b.add_argument(
+        "--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze Camera.mat"
+    )
+    b.add_argument("--face-index", type=int, default=None, help="which face, largest first (default: the largest)")
+    b.add_argument(
+        "--vertices",
+        choices=("canonical", "backprojected", "landmarks3d"),
+        default="backprojected",
+        help="vertex placement (default: backprojected)",
+    )
+    b.add_argument("--face-model", default=None, help="'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy)")
+    b.add_argument(
+        "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
+    )
+    b.add_argument(
+        "--reconstruct",
+        choices=("auto", "ball_pivoting"),
+        default="auto",
+        help="triangles: the model's (auto) or Ball-Pivoting",
+    )
+    b.add_argument(
+        "--bpa-backend", choices=("open3d", "pymeshlab"), default="open3d", help="Ball-Pivoting implementation"
+    )
+    b.add_argument("--texture-format", choices=("png", "jpeg"), default="png", help="texture encoding inside the .glb")
+    b.add_argument("--texture-margin", type=float, default=0.15, help="texture crop margin, fraction of the face size")
+    b.add_argument("--preview", type=Path, help="also write a picture: the mesh rendered over the photo")
+
+    i = sub.add_parser("info", help="describe a .glb written by facemesh")
+    i.add_argument("glb", type=Path)
+    i.add_argument("--json", action="store_true", help="print the metadata as JSON")
+
+    r = sub.add_parser("render", help="picture of a .glb's face turned by a yaw and a pitch")
+    r.add_argument("glb", type=Path)
+    r.add_argument("--yaw", type=float, default=0.0, help="degrees; > 0 turns the face toward the image's left")
+    r.add_argument("--pitch", type=float, default=0.0, help="degrees; > 0 turns the face up")
+    r.add_argument("--supersample", type=int, default=2, help="rays per pixel side")
+    r.add_argument("-o", "--output", type=Path, required=True, help="output picture (.png/.jpg)")
+
+    m = sub.add_parser("model", help="face models")
+    msub = m.add_subparsers(dest="model_command", required=True)
+    e = msub.add_parser("export", help="write a face model as OBJ (mm, head frame)")
+    e.add_argument("model", nargs="?", default="mediapipe", help="'mediapipe' (built-in) or a model file")
+    e.add_argument("-o", "--output", type=Path, required=True)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (also used as the console script's)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "build":
+            _cmd_build(args)
+        elif args.command == "info":
+            _cmd_info(args)
+        elif args.command == "render":
+            _cmd_render(args)
+        elif args.command == "model":
+            _cmd_model_export(args)
+    except FaceMeshError as exc:
+        print(f"facemesh: error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:
+        print(f"facemesh: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _cmd_build(args: argparse.Namespace) -> None:
+    from .build import SAMPLE_NAME, build_mesh, sample_image
+    from .camera import DefaultCameraWarning, camera_for_image
+    from .face_models import resolve_face_model
+    from .gltf import save_glb
+    from .io import load_image_rgb, save_image_rgb
+    from .landmarks import ArrayLandmarkModel, MediaPipeFaceMesh, load_landmarks_file
+    from .mesh import BuildSettings
+    from .reconstruct import BallPivotingSettings
+    from .types import InputError
+
+    if args.output.suffix.lower() != ".glb":
+        raise InputError(f"{args.output}: the output must be a .glb file")
+    if args.image is None:
+        image, source = sample_image(), SAMPLE_NAME
+    else:
+        image, source = load_image_rgb(args.image), str(args.image)
+    h, w = image.shape[:2]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DefaultCameraWarning)
+        camera = camera_for_image(args.camera, w, h)
+    for warning in caught:
+        print(f"facemesh: warning: {warning.message}", file=sys.stderr)
+    face_model = resolve_face_model(args.face_model) if args.face_model else None
+    if args.landmarks is not None:
+        if face_model is None:
+            raise InputError("--landmarks needs --face-model: the 3D model your landmarks correspond to")
+        detector: Any = ArrayLandmarkModel(
+            load_landmarks_file(args.landmarks), face_model, name=f"user:{args.landmarks.name}"
+        )
+    else:
+        detector = MediaPipeFaceMesh()
+    settings = BuildSettings(
+        vertex_placement=args.vertices,
+        texture_margin=args.texture_margin,
+        reconstruction=args.reconstruct,
+        ball_pivoting=BallPivotingSettings(backend=args.bpa_backend),
+    )
+    try:
+        mesh = build_mesh(
+            image, camera, detector, face_model=face_model, face_index=args.face_index, settings=settings, source=source
+        )
+    finally:
+        close = getattr(detector, "close", None)
+        if close is not None:
+            close()
+    save_glb(mesh, args.output, texture_format=args.texture_format)
+    print(
+        f"facemesh: wrote {args.output} ({mesh.num_vertices} vertices, {mesh.num_triangles} triangles, "
+        f"texture {mesh.texture.shape[1]}x{mesh.texture.shape[0]}, reprojection error "
+        f"{mesh.pose.reprojection_error_px:.2f} px)"
+    )
+    if args.preview is not None:
+        save_image_rgb(args.preview, _preview(image, mesh))
+        print(f"facemesh: wrote {args.preview}")
+
+
+def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
+    """The photo with the rendered mesh blended in, its wireframe and landmarks drawn, beside a frontal render."""
+    import cv2
+
+    from .conventions import rotation_to_head_pitchyaw
+    from .pose import project_points
+    from .render import RaycastScene
+
+    h, w = image.shape[:2]
+    k = mesh.camera.matrix
+    over = RaycastScene.from_mesh(mesh).render(k, (w, h), supersample=1)
+    canvas = image.copy()
+    hit = over.coverage > 0
+    canvas[hit] = (0.5 * canvas[hit] + 0.5 * over.image[hit]).astype(np.uint8)
+    px = project_points(mesh.vertices_mm, mesh.camera)
+    thickness = max(1, round(max(h, w) / 1000))
+    for a, b, c in mesh.triangles:
+        pts = np.round(px[[a, b, c]]).astype(np.int32)
+        cv2.polylines(canvas, [pts], True, (40, 220, 255), thickness, cv2.LINE_AA)
+    # Frontal view: undo the head rotation (about the head frame's origin).
+    pitch, yaw = rotation_to_head_pitchyaw(mesh.pose.rotation)
+    frontal = RaycastScene.from_mesh(mesh, rotation=mesh.pose.rotation.T).render(k, (w, h), supersample=2).image
+    x0, y0, x1, y1 = (int(v) for v in mesh.landmarks.bbox_px)
+    pad = int(0.2 * max(x1 - x0, y1 - y0))
+    crop = (slice(max(0, y0 - pad), min(h, y1 + pad)), slice(max(0, x0 - pad), min(w, x1 + pad)))
+    left, right = canvas[crop], frontal[crop]
+    label = f"pitch {math.degrees(pitch):+.1f}  yaw {math.degrees(yaw):+.1f} deg"
+    cv2.putText(left, label, (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    cv2.putText(right, "turned frontal", (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    return np.concatenate([left, right], axis=1)
+
+
+def _cmd_info(args: argparse.Namespace) -> None:
+    from .conventions import rotation_to_head_pitchyaw
+    from .gltf import load_glb
+
+    mesh = load_glb(args.glb)
+    pitch, yaw = np.degrees(rotation_to_head_pitchyaw(mesh.pose.rotation))
+    info = {
+        "file": str(args.glb),
+        "vertices": mesh.num_vertices,
+        "triangles": mesh.num_triangles,
+        "texture_size_wh": [int(mesh.texture.shape[1]), int(mesh.texture.shape[0])],
+        "landmarks": mesh.landmarks.num_points,
+        "landmark_model": mesh.landmarks.model_name,
+        "face_model": mesh.face_model_name,
+        "vertex_placement": mesh.vertex_placement,
+        "image_size_wh": list(mesh.camera.image_size),
+        "camera_source": mesh.camera.source,
+        "focal_px": list(mesh.camera.focal_px),
+        "head_pitch_yaw_deg": [round(float(pitch), 3), round(float(yaw), 3)],
+        "head_translation_mm": [round(float(v), 3) for v in mesh.pose.translation_mm],
+        "reprojection_error_px": round(mesh.pose.reprojection_error_px, 4),
+        "reconstruction": mesh.reconstruction or {"method": "face model triangles"},
+        "extras": mesh.extras,
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return
+    width = max(len(k) for k in info)
+    for key, value in info.items():
+        print(f"{key:<{width}}  {value}")
+
+
+def _cmd_render(args: argparse.Namespace) -> None:
+    from .conventions import rotation_from_yaw_pitch
+    from .gltf import load_glb
+    from .io import save_image_rgb
+    from .render import RaycastScene
+
+    mesh = load_glb(args.glb)
+    rot = rotation_from_yaw_pitch(math.radians(args.yaw), math.radians(args.pitch))
+    scene = RaycastScene.from_mesh(mesh, rotation=rot)
+    w, h = mesh.camera.image_size
+    img = scene.render(mesh.camera.matrix, (w, h), supersample=args.supersample, background=(128, 128, 128)).image
+    save_image_rgb(args.output, img)
+    print(f"facemesh: wrote {args.output} (yaw {args.yaw:+g} deg, pitch {args.pitch:+g} deg)")
+
+
+def _cmd_model_export(args: argparse.Namespace) -> None:
+    from .face_models import export_obj, resolve_face_model
+    from .io import atomic_write
+
+    model = resolve_face_model(args.model)
+    with atomic_write(args.output) as fh:
+        fh.write(export_obj(model).encode("utf-8"))
+    n_tri = 0 if model.triangles is None else len(model.triangles)
+    print(f"facemesh: wrote {args.output} ({model.num_points} vertices in mm, {n_tri} triangles)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,254 @@
+"""Every frame, axis, angle and unit convention of the project, in one place.
+
+Nothing outside this module flips a sign or swaps an axis. Each function
+names the convention it converts from and to; the tests in
+``tests/test_conventions.py`` pin every one of them to values derived by hand.
+
+Frames
+------
+OpenCV camera frame (``camera``)
+    Origin at the camera centre; x to the right of the image, y down the
+    image, z forward along the optical axis. Millimetres.
+Image frame (``px``)
+    Pixel coordinates as OpenCV uses them: x = column, y = row, the centre of
+    the top-left pixel at (0, 0).
+Head frame (``head``), also the frame of every face model
+    Origin at the midpoint of the two eye centres (each eye centre the mean of
+    that eye's two corners). x points toward the subject's *left* ear (so it
+    matches the image's x for a face looking into the camera), y toward the
+    chin, z from the face into the head. A face looking straight into a camera
+    in front of it has rotation identity. Millimetres.
+glTF frame (``gltf``)
+    glTF 2.0: right-handed, +Y up, a camera looks down -Z; metres. An OpenCV
+    camera frame point (x, y, z) mm is ``(x, -y, -z) / 1000`` in glTF, so a
+    glTF camera at the origin with identity orientation sees what the real
+    camera saw.
+Texture coordinates (``uv``)
+    glTF's: u to the right, v down, (0, 0) the top-left *corner* of the
+    texture image and (1, 1) the bottom-right corner. Pixel centre (i, j) of a
+    W x H texture sits at ((i + 0.5) / W, (j + 0.5) / H).
+
+Angles
+------
+Directions (gaze, and the direction the face points) are (pitch, yaw) in
+radians with the MPIIGaze / ETH-XGaze convention::
+
+    x = -cos(pitch) sin(yaw),  y = -sin(pitch),  z = -cos(pitch) cos(yaw)
+
+so (0, 0) looks straight into the camera, positive pitch looks *up* and
+positive yaw looks toward the image's left (the subject's right).
+
+The head pose as (pitch, yaw) is this convention applied to the direction the
+face points, ``-R[:, 2]`` (the opposite of the head frame's z axis):
+``pitch = asin(R[1, 2])``, ``yaw = atan2(R[0, 2], R[2, 2])`` as in MPIIGaze.
+A head pose pitch of +30 deg means the face points 30 deg above the camera's
+axis, which is how a camera *below* the face, looking up at it, sees a level
+head (the paper's wheelchair example).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "OPENCV_TO_GLTF",
+    "MEDIAPIPE_CANONICAL_TO_HEAD",
+    "opencv_to_gltf_points",
+    "gltf_to_opencv_points",
+    "pixels_to_uv",
+    "uv_to_pixels",
+    "pitchyaw_to_vector",
+    "vector_to_pitchyaw",
+    "rotation_to_head_pitchyaw",
+    "rotation_yaw",
+    "rotation_pitch",
+    "rotation_from_yaw_pitch",
+    "angular_error_deg",
+]
+
+#: (3, 3) float64: axis change from the OpenCV camera frame to glTF axes
+#: (x kept, y and z negated). Its own inverse.
+OPENCV_TO_GLTF: NDArray[np.float64] = np.diag([1.0, -1.0, -1.0])
+
+#: (3, 3) float64: axis change from MediaPipe's canonical face model frame
+#: (x toward the subject's left, y up, z toward the viewer) to the head frame.
+MEDIAPIPE_CANONICAL_TO_HEAD: NDArray[np.float64] = np.diag([1.0, -1.0, -1.0])
+
+_MM_PER_M = 1000.0
+
+
+def _as_points(points: ArrayLike, dim: int, name: str) -> NDArray[np.float64]:
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim < 1 or arr.shape[-1] != dim:
+        raise ValueError(f"{name}: expected shape (..., {dim}), got {arr.shape}")
+    return arr
+
+
+def opencv_to_gltf_points(points_camera_mm: ArrayLike) -> NDArray[np.float64]:
+    """OpenCV camera frame, mm -> glTF axes, metres.
+
+    Args:
+        points_camera_mm: (..., 3) float, millimetres, OpenCV camera frame.
+
+    Returns:
+        (..., 3) float64, metres, glTF frame.
+    """
+    p = _as_points(points_camera_mm, 3, "points_camera_mm")
+    return (p @ OPENCV_TO_GLTF.T) / _MM_PER_M
+
+
+def gltf_to_opencv_points(points_gltf_m: ArrayLike) -> NDArray[np.float64]:
+    """GlTF axes, metres -> OpenCV camera frame, mm (inverse of :func:`opencv_to_gltf_points`).
+
+    Args:
+        points_gltf_m: (..., 3) float, metres, glTF frame.
+
+    Returns:
+        (..., 3) float64, millimetres, OpenCV camera frame.
+    """
+    p = _as_points(points_gltf_m, 3, "points_gltf_m")
+    return (p @ OPENCV_TO_GLTF.T) * _MM_PER_M
+
+
+def pixels_to_uv(points_px: ArrayLike, origin_px: tuple[float, float], size_wh: tuple[int, int]) -> NDArray[np.float64]:
+    """Image pixel coordinates -> glTF texture coordinates of a cropped texture.
+
+    Args:
+        points_px: (..., 2) float, pixels, image frame of the full image.
+        origin_px: (x0, y0) integer pixel of the full image that is the
+            crop's top-left pixel.
+        size_wh: (width, height) of the crop in pixels.
+
+    Returns:
+        (..., 2) float64 uv: ``u = (x - x0 + 0.5) / W``, ``v = (y - y0 + 0.5) / H``.
+    """
+    p = _as_points(points_px, 2, "points_px")
+    w, h = size_wh
+    if w <= 0 or h <= 0:
+        raise ValueError(f"size_wh: expected positive sizes, got {size_wh}")
+    out = np.empty_like(p)
+    out[..., 0] = (p[..., 0] - origin_px[0] + 0.5) / w
+    out[..., 1] = (p[..., 1] - origin_px[1] + 0.5) / h
+    return out
+
+
+def uv_to_pixels(uv: ArrayLike, size_wh: tuple[int, int]) -> NDArray[np.float64]:
+    """Texture coordinates (glTF) -> pixel coordinates in the texture image.
+
+    The inverse of :func:`pixels_to_uv` with origin (0, 0).
+
+    Args:
+        uv: (..., 2) float, glTF texture coordinates.
+        size_wh: (width, height) of the texture in pixels.
+
+    Returns:
+        (..., 2) float64 pixels, image frame of the texture (pixel centres at integers).
+    """
+    t = _as_points(uv, 2, "uv")
+    out = np.empty_like(t)
+    out[..., 0] = t[..., 0] * size_wh[0] - 0.5
+    out[..., 1] = t[..., 1] * size_wh[1] - 0.5
+    return out
+
+
+def pitchyaw_to_vector(pitchyaw_rad: ArrayLike) -> NDArray[np.float64]:
+    """(pitch, yaw) radians -> unit direction vector, MPIIGaze convention.
+
+    Args:
+        pitchyaw_rad: (..., 2) float, radians, (pitch, yaw).
+
+    Returns:
+        (..., 3) float64 unit vectors in the camera frame the angles refer to:
+        ``(-cos p sin y, -sin p, -cos p cos y)``.
+    """
+    a = _as_points(pitchyaw_rad, 2, "pitchyaw_rad")
+    p, y = a[..., 0], a[..., 1]
+    return np.stack([-np.cos(p) * np.sin(y), -np.sin(p), -np.cos(p) * np.cos(y)], axis=-1)
+
+
+def vector_to_pitchyaw(vectors: ArrayLike) -> NDArray[np.float64]:
+    """Direction vector (any length > 0) -> (pitch, yaw) radians, MPIIGaze convention.
+
+    Args:
+        vectors: (..., 3) float, any non-zero length, camera frame.
+
+    Returns:
+        (..., 2) float64 radians, (pitch, yaw); pitch in [-pi/2, pi/2], yaw in (-pi, pi].
+    """
+    v = _as_points(vectors, 3, "vectors")
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    if np.any(n == 0) or not np.all(np.isfinite(n)):
+        raise ValueError("vectors: expected finite, non-zero vectors")
+    u = v / n
+    pitch = np.arcsin(np.clip(-u[..., 1], -1.0, 1.0))
+    yaw = np.arctan2(-u[..., 0], -u[..., 2])
+    return np.stack([pitch, yaw], axis=-1)
+
+
+def rotation_to_head_pitchyaw(rotation_head_to_camera: ArrayLike) -> NDArray[np.float64]:
+    """Head rotation -> head pose (pitch, yaw) radians (MPIIGaze: from the third column).
+
+    Args:
+        rotation_head_to_camera: (..., 3, 3) float, rotation taking head frame
+            vectors into the camera frame.
+
+    Returns:
+        (..., 2) float64 radians: ``pitch = asin(R[1, 2])``, ``yaw = atan2(R[0, 2], R[2, 2])``.
+    """
+    r = np.asarray(rotation_head_to_camera, dtype=np.float64)
+    if r.shape[-2:] != (3, 3):
+        raise ValueError(f"rotation_head_to_camera: expected shape (..., 3, 3), got {r.shape}")
+    return vector_to_pitchyaw(-r[..., :, 2])
+
+
+def rotation_yaw(yaw_rad: float) -> NDArray[np.float64]:
+    """Rotation about the camera's y axis that turns a face pointing along -z to yaw ``yaw_rad``.
+
+    ``[[cos, 0, sin], [0, 1, 0], [-sin, 0, cos]]`` (right-handed about +y).
+    """
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotation_pitch(pitch_rad: float) -> NDArray[np.float64]:
+    """Rotation about the camera's x axis that turns a face pointing along -z to pitch ``pitch_rad`` (up for > 0).
+
+    It is the right-handed rotation about +x by ``-pitch_rad``:
+    ``[[1, 0, 0], [0, cos, sin], [0, -sin, cos]]``.
+    """
+    c, s = np.cos(pitch_rad), np.sin(pitch_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+
+def rotation_from_yaw_pitch(yaw_rad: float, pitch_rad: float) -> NDArray[np.float64]:
+    """The paper's head rotation ``R(y, p) = R_pitch(p) @ R_yaw(y)``: yaw first, then pitch.
+
+    Applied to a frontal face (pointing along -z) it gives a face pointing to
+    ``(-sin y, -sin p cos y, -cos p cos y)``: exactly pitch p for y = 0 and
+    exactly yaw y for p = 0.
+
+    Returns:
+        (3, 3) float64 rotation, camera frame.
+    """
+    return rotation_pitch(pitch_rad) @ rotation_yaw(yaw_rad)
+
+
+def angular_error_deg(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """Angle between direction vectors, degrees.
+
+    Args:
+        a: (..., 3) float, any non-zero length.
+        b: (..., 3) float, any non-zero length, same frame as ``a``.
+
+    Returns:
+        (...,) float64 degrees in [0, 180].
+    """
+    u = _as_points(a, 3, "a")
+    v = _as_points(b, 3, "b")
+    nu = np.linalg.norm(u, axis=-1)
+    nv = np.linalg.norm(v, axis=-1)
+    if np.any(nu == 0) or np.any(nv == 0):
+        raise ValueError("angular_error_deg: expected non-zero vectors")
+    cos = np.sum(u * v, axis=-1) / (nu * nv)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

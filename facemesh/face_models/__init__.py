@@ -1,0 +1,219 @@
+"""3D face models: the built-in MediaPipe-topology model and loaders for other models.
+
+The built-in model ``"mediapipe"`` (468 points, millimetres, head frame) was
+derived by :mod:`facemesh.face_models.derive_mediapipe` from MediaPipe's own
+3D landmark output on two public-domain photos that ship inside pip wheels;
+it is *not* a copy of MediaPipe's canonical face model.
+
+Files a user can give as ``--face-model PATH``:
+
+``.obj``
+    ``v x y z`` lines (and optional ``f`` lines, 1-based, ``a/b/c`` allowed).
+    Files written by ``facemesh model export`` start with the comment
+    ``# facemesh face model frame=head units=mm`` and are read as such; any
+    other OBJ is read with MediaPipe's canonical convention (centimetres,
+    y up, z toward the viewer), so MediaPipe's ``canonical_face_model.obj``
+    loads as is.
+``.pbtxt``
+    MediaPipe's geometry pipeline metadata: the ``canonical_mesh`` block
+    (5 floats per vertex x, y, z, u, v; centimetres; MediaPipe frame) and its
+    ``index_buffer``.
+``.txt`` / ``.csv``
+    A plain matrix of numbers in millimetres, head frame: N x 3, or 3 x N as
+    MPIIFaceGaze's ``faceModelGeneric.txt``.
+``.npy``
+    (N, 3) float array, millimetres, head frame.
+
+MediaPipe-topology models (468 or 478 points) are re-centred so that the head
+frame's origin is the midpoint of the two eye centres (see :data:`EYE_CORNERS`).
+"""
+
+from __future__ import annotations
+
+import re
+from functools import cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..conventions import MEDIAPIPE_CANONICAL_TO_HEAD
+from ..types import FaceModel, InputError
+
+__all__ = [
+    "BUILTIN_MODELS",
+    "EYE_CORNERS",
+    "builtin_face_model",
+    "load_face_model",
+    "resolve_face_model",
+    "export_obj",
+    "mirror_permutation",
+    "OBJ_HEADER",
+]
+
+#: Names accepted by :func:`builtin_face_model`.
+BUILTIN_MODELS = ("mediapipe",)
+
+#: MediaPipe landmark indices of the eye corners: subject's right eye (outer,
+#: inner) = (33, 133), subject's left eye (inner, outer) = (362, 263). The
+#: subject's right eye appears on the image's left.
+EYE_CORNERS = {"right": (33, 133), "left": (362, 263)}
+
+#: First line of OBJ files written by :func:`export_obj`.
+OBJ_HEADER = "# facemesh face model frame=head units=mm"
+
+_DATA_FILE = "mediapipe468.npz"
+
+
+@cache
+def _builtin_arrays() -> dict[str, NDArray[np.generic]]:
+    with resources.files(__package__).joinpath(_DATA_FILE).open("rb") as fh:
+        with np.load(fh) as npz:
+            return {k: npz[k] for k in npz.files}
+
+
+def builtin_face_model(name: str = "mediapipe") -> FaceModel:
+    """The face model shipped with the package.
+
+    Args:
+        name: one of :data:`BUILTIN_MODELS`.
+
+    Returns:
+        ``"mediapipe"``: 468 points, millimetres, head frame, 898 triangles
+        (eyes and mouth closed; only the outer contour open).
+    """
+    if name not in BUILTIN_MODELS:
+        raise InputError(f"unknown built-in face model {name!r}; expected one of {BUILTIN_MODELS}")
+    arr = _builtin_arrays()
+    return FaceModel(
+        name=name,
+        vertices_mm=np.asarray(arr["vertices_mm"], dtype=np.float64),
+        triangles=np.asarray(arr["triangles"], dtype=np.int64),
+    )
+
+
+def mirror_permutation() -> NDArray[np.int64]:
+    """(468,) int64: landmark i's left-right mirror partner in the MediaPipe topology (derived with the model)."""
+    return np.asarray(_builtin_arrays()["mirror"], dtype=np.int64)
+
+
+def resolve_face_model(spec: str | Path) -> FaceModel:
+    """A built-in name (``"mediapipe"``) or a path -> :class:`FaceModel`."""
+    if isinstance(spec, str) and spec in BUILTIN_MODELS:
+        return builtin_face_model(spec)
+    return load_face_model(spec)
+
+
+def _recentre_mediapipe(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
+    if len(vertices) in (468, 478):
+        corners = [i for pair in EYE_CORNERS.values() for i in pair]
+        return vertices - vertices[corners].mean(axis=0)
+    return vertices
+
+
+def load_face_model(path: str | Path) -> FaceModel:
+    """Read a face model file (see the module docstring for the formats and their units).
+
+    Raises:
+        InputError: missing file, unknown suffix, or malformed content (the message names the file).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: face model file not found")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".obj":
+            verts, tris = _read_obj(p)
+        elif suffix == ".pbtxt":
+            verts, tris = _read_pbtxt(p)
+        elif suffix in (".txt", ".csv"):
+            verts, tris = _read_matrix(p), None
+        elif suffix == ".npy":
+            verts, tris = np.asarray(np.load(p, allow_pickle=False), dtype=np.float64), None
+        else:
+            raise InputError(f"{p}: unknown face model format {suffix!r} (expected .obj, .pbtxt, .txt, .csv or .npy)")
+    except InputError:
+        raise
+    except (ValueError, OSError) as exc:
+        raise InputError(f"{p}: cannot read face model: {exc}") from exc
+    if verts.ndim != 2 or verts.shape[1] != 3:
+        raise InputError(f"{p}: expected N x 3 face model points, got shape {verts.shape}")
+    verts = _recentre_mediapipe(verts)
+    try:
+        return FaceModel(name=p.name, vertices_mm=verts, triangles=tris)
+    except InputError as exc:
+        raise InputError(f"{p}: {exc}") from exc
+
+
+def _read_obj(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+    text = p.read_text(encoding="utf-8", errors="strict")
+    ours = text.startswith(OBJ_HEADER)
+    verts: list[list[float]] = []
+    faces: list[list[int]] = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            if len(parts) < 4:
+                raise InputError(f"{p}:{lineno}: a 'v' line needs 3 coordinates")
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "f":
+            idx = [int(x.split("/")[0]) for x in parts[1:]]
+            if len(idx) < 3:
+                raise InputError(f"{p}:{lineno}: an 'f' line needs at least 3 vertices")
+            idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+            faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    if not verts:
+        raise InputError(f"{p}: no 'v' lines")
+    v = np.asarray(verts, dtype=np.float64)
+    if not ours:
+        v = (v @ MEDIAPIPE_CANONICAL_TO_HEAD.T) * 10.0
+    t = np.asarray(faces, dtype=np.int64) if faces else None
+    return v, t
+
+
+def _read_pbtxt(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+    text = p.read_text(encoding="utf-8")
+    start = text.find("canonical_mesh")
+    if start < 0:
+        raise InputError(f"{p}: no 'canonical_mesh' block (expected MediaPipe geometry pipeline metadata)")
+    block = text[start:]
+    vb = [float(x) for x in re.findall(r"vertex_buffer:\s*([-+0-9.eE]+)", block)]
+    ib = [int(x) for x in re.findall(r"index_buffer:\s*(\d+)", block)]
+    if not vb or len(vb) % 5:
+        raise InputError(f"{p}: expected 5 floats (x, y, z, u, v) per vertex, got {len(vb)} floats")
+    v = np.asarray(vb, dtype=np.float64).reshape(-1, 5)[:, :3]
+    v = (v @ MEDIAPIPE_CANONICAL_TO_HEAD.T) * 10.0
+    if len(ib) % 3:
+        raise InputError(f"{p}: index_buffer length {len(ib)} is not a multiple of 3")
+    t = np.asarray(ib, dtype=np.int64).reshape(-1, 3) if ib else None
+    return v, t
+
+
+def _read_matrix(p: Path) -> NDArray[np.float64]:
+    delimiter = "," if p.suffix.lower() == ".csv" else None
+    m = np.loadtxt(p, dtype=np.float64, delimiter=delimiter, ndmin=2)
+    if m.shape[1] == 3:
+        return m
+    if m.shape[0] == 3:
+        return m.T.copy()
+    raise InputError(f"{p}: expected an N x 3 or 3 x N matrix, got {m.shape[0]} x {m.shape[1]}")
+
+
+def export_obj(model: FaceModel) -> str:
+    """Wavefront OBJ text of a face model: millimetres, head frame, 1-based faces.
+
+    The first line is :data:`OBJ_HEADER`, so :func:`load_face_model` reads it back unchanged.
+    """
+    lines = [
+        OBJ_HEADER,
+        f"# name: {model.name}; {model.num_points} vertices; "
+        f"{0 if model.triangles is None else len(model.triangles)} triangles",
+        "# head frame: x toward the subject's left ear, y toward the chin, z into the head",
+    ]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in model.vertices_mm]
+    if model.triangles is not None:
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in model.triangles]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,232 @@
+"""Turn MediaPipe's edge list into a clean, oriented, manifold triangulation.
+
+The mediapipe wheel ships ``FACEMESH_TESSELATION`` as a set of edges only.
+Its 3-cliques are the triangles, except for a few "spurious" cliques whose
+three edges are all shared with two other cliques (a triangle spanned around a
+vertex that already has its own fan). Removing those leaves an edge-manifold
+surface with four holes: the outer face contour, both eye openings and the
+mouth opening. We orient it consistently (right-hand normals out of the face)
+and close the eyes and the mouth by ear clipping, so the iris and sclera get
+texture. Only the outer contour stays open.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import Counter, defaultdict
+from collections.abc import Iterable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "triangles_from_edges",
+    "edge_use_counts",
+    "boundary_loops",
+    "orient_consistently",
+    "ear_clip",
+    "clean_triangulation_from_edges",
+]
+
+
+def triangles_from_edges(edges: Iterable[tuple[int, int]]) -> list[tuple[int, int, int]]:
+    """All 3-cliques of an undirected graph, each as a sorted vertex triple, sorted."""
+    adj: dict[int, set[int]] = defaultdict(set)
+    for a, b in edges:
+        if a != b:
+            adj[a].add(b)
+            adj[b].add(a)
+    tris: set[tuple[int, int, int]] = set()
+    for a in adj:
+        for b in adj[a]:
+            if b <= a:
+                continue
+            for c in adj[a] & adj[b]:
+                if c > b:
+                    tris.add((a, b, c))
+    return sorted(tris)
+
+
+def edge_use_counts(triangles: ArrayLike) -> Counter[tuple[int, int]]:
+    """How many triangles use each undirected edge (keys sorted pairs)."""
+    cnt: Counter[tuple[int, int]] = Counter()
+    for t in np.asarray(triangles, dtype=np.int64).reshape(-1, 3):
+        for a, b in itertools.combinations(t.tolist(), 2):
+            cnt[(min(a, b), max(a, b))] += 1
+    return cnt
+
+
+def boundary_loops(triangles: ArrayLike) -> list[list[int]]:
+    """Closed loops of boundary edges (edges used by one triangle), ordered as the triangles run them.
+
+    Each loop follows the directed boundary edges of the triangles, so for a
+    consistently oriented mesh the loops run in one rotational sense.
+
+    Raises:
+        ValueError: the boundary is not a set of simple loops.
+    """
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    cnt = edge_use_counts(tri)
+    nxt: dict[int, int] = {}
+    for t in tri.tolist():
+        for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
+            if cnt[(min(a, b), max(a, b))] == 1:
+                if a in nxt:
+                    raise ValueError(f"boundary vertex {a} is on more than one boundary edge leaving it")
+                nxt[a] = b
+    loops: list[list[int]] = []
+    seen: set[int] = set()
+    for start in sorted(nxt):
+        if start in seen:
+            continue
+        loop = [start]
+        seen.add(start)
+        cur = nxt[start]
+        while cur != start:
+            if cur in seen or cur not in nxt:
+                raise ValueError(f"boundary through vertex {cur} is not a simple loop")
+            loop.append(cur)
+            seen.add(cur)
+            cur = nxt[cur]
+        loops.append(loop)
+    return loops
+
+
+def orient_consistently(triangles: ArrayLike, vertices: ArrayLike, outward: ArrayLike) -> NDArray[np.int64]:
+    """Give every triangle the winding of its neighbours, then make normals face ``outward`` on average.
+
+    Args:
+        triangles: (M, 3) int vertex indices, any windings.
+        vertices: (N, 3) float positions.
+        outward: (3,) the direction right-hand normals should point to (on average per component).
+
+    Returns:
+        (M, 3) int64 triangles, same order, some rows with two indices swapped.
+    """
+    tri = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+    v = np.asarray(vertices, dtype=np.float64)
+    out = np.asarray(outward, dtype=np.float64)
+    edge_tris: dict[tuple[int, int], list[int]] = defaultdict(list)
+    for i, t in enumerate(tri.tolist()):
+        for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
+            edge_tris[(min(a, b), max(a, b))].append(i)
+    done = np.zeros(len(tri), dtype=bool)
+    for seed in range(len(tri)):
+        if done[seed]:
+            continue
+        component = [seed]
+        done[seed] = True
+        stack = [seed]
+        while stack:
+            i = stack.pop()
+            t = tri[i].tolist()
+            for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
+                for j in edge_tris[(min(a, b), max(a, b))]:
+                    if done[j]:
+                        continue
+                    u = tri[j].tolist()
+                    # A consistent neighbour runs the shared edge as b -> a.
+                    if (a, b) in ((u[0], u[1]), (u[1], u[2]), (u[2], u[0])):
+                        tri[j] = [u[0], u[2], u[1]]
+                    done[j] = True
+                    component.append(j)
+                    stack.append(j)
+        comp = tri[component]
+        normals = np.cross(v[comp[:, 1]] - v[comp[:, 0]], v[comp[:, 2]] - v[comp[:, 0]])
+        if float(np.sum(normals @ out)) < 0:
+            tri[component] = tri[component][:, [0, 2, 1]]
+    return tri
+
+
+def ear_clip(loop: list[int], points_2d: ArrayLike) -> list[tuple[int, int, int]]:
+    """Triangulate a simple polygon by ear clipping, always cutting the best-shaped ear.
+
+    Args:
+        loop: vertex indices of the polygon, in order (either sense).
+        points_2d: (N, 2) float positions indexed by vertex index.
+
+    Returns:
+        len(loop) - 2 triangles with the same rotational sense as ``loop``.
+    """
+    p = np.asarray(points_2d, dtype=np.float64)
+    idx = list(loop)
+    signed = 0.5 * sum(
+        p[idx[i], 0] * p[idx[(i + 1) % len(idx)], 1] - p[idx[(i + 1) % len(idx)], 0] * p[idx[i], 1]
+        for i in range(len(idx))
+    )
+    sense = 1.0 if signed > 0 else -1.0
+    out: list[tuple[int, int, int]] = []
+
+    def cross(o: int, a: int, b: int) -> float:
+        return float((p[a, 0] - p[o, 0]) * (p[b, 1] - p[o, 1]) - (p[a, 1] - p[o, 1]) * (p[b, 0] - p[o, 0]))
+
+    while len(idx) > 3:
+        best, best_q = -1, -np.inf
+        n = len(idx)
+        for i in range(n):
+            a, b, c = idx[i - 1], idx[i], idx[(i + 1) % n]
+            if cross(a, b, c) * sense <= 0:
+                continue  # reflex corner
+            inside = False
+            for q in idx:
+                if q in (a, b, c):
+                    continue
+                if cross(a, b, q) * sense >= 0 and cross(b, c, q) * sense >= 0 and cross(c, a, q) * sense >= 0:
+                    inside = True
+                    break
+            if inside:
+                continue
+            # Quality: smallest angle of the ear (prefer fat triangles).
+            tri_pts = p[[a, b, c]]
+            angles = []
+            for k in range(3):
+                u = tri_pts[(k + 1) % 3] - tri_pts[k]
+                w = tri_pts[(k + 2) % 3] - tri_pts[k]
+                cosang = u @ w / (np.linalg.norm(u) * np.linalg.norm(w) + 1e-300)
+                angles.append(np.arccos(np.clip(cosang, -1, 1)))
+            q_val = min(angles)
+            if q_val > best_q:
+                best, best_q = i, q_val
+        if best < 0:
+            raise ValueError("ear clipping failed: the polygon is not simple")
+        n = len(idx)
+        out.append((idx[best - 1], idx[best], idx[(best + 1) % n]))
+        del idx[best]
+    out.append((idx[0], idx[1], idx[2]))
+    return out
+
+
+def clean_triangulation_from_edges(
+    edges: Iterable[tuple[int, int]], vertices_head_mm: ArrayLike, *, close_holes_smaller_than: int = 30
+) -> NDArray[np.int64]:
+    """MediaPipe-style edge list -> manifold, oriented triangles with the inner holes closed.
+
+    Args:
+        edges: undirected vertex index pairs.
+        vertices_head_mm: (N, 3) float, head frame (faces look toward -z).
+        close_holes_smaller_than: boundary loops with fewer vertices than this
+            are closed (eyes: 16, mouth: 20); the outer contour (36) stays open.
+
+    Returns:
+        (M, 3) int64, right-hand normals pointing out of the face (toward -z of the head frame).
+    """
+    v = np.asarray(vertices_head_mm, dtype=np.float64)
+    cliques = triangles_from_edges(edges)
+    cnt = edge_use_counts(cliques)
+    # Spurious cliques: all three edges over-used (three cliques share them).
+    spurious = {t for t in cliques if all(cnt[(min(a, b), max(a, b))] > 2 for a, b in itertools.combinations(t, 2))}
+    tris = [t for t in cliques if t not in spurious]
+    cnt = edge_use_counts(tris)
+    if max(cnt.values()) > 2:
+        raise ValueError("the edge graph is not a surface: edges remain with more than two triangles")
+    outward = np.array([0.0, 0.0, -1.0])
+    tri = orient_consistently(np.array(tris), v, outward)
+    added: list[tuple[int, int, int]] = []
+    for loop in boundary_loops(tri):
+        if len(loop) >= close_holes_smaller_than:
+            continue
+        # The loop runs as the triangles' boundary edges do; the patch closing
+        # it must run each edge the other way, so clip the reversed loop.
+        added.extend(ear_clip(loop[::-1], v[:, :2]))
+    full = np.vstack([tri, np.array(added, dtype=np.int64).reshape(-1, 3)])
+    return orient_consistently(full, v, outward)

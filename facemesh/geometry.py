@@ -1,0 +1,41 @@
+"""Small geometric helpers shared by the stages (no conventions live here)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["similarity_transform", "apply_similarity"]
+
+
+def similarity_transform(
+    source: ArrayLike, target: ArrayLike, *, with_scale: bool = True
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares ``s, R, t`` with ``target ~ s * R @ source + t`` (Umeyama 1991).
+
+    Args:
+        source: (N, 3) float points.
+        target: (N, 3) float points, same order.
+        with_scale: estimate ``s``; otherwise ``s = 1`` (rigid).
+
+    Returns:
+        ``(s, R, t)``: float, (3, 3) float64 proper rotation, (3,) float64.
+    """
+    a = np.asarray(source, dtype=np.float64)
+    b = np.asarray(target, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or len(a) < 3:
+        raise ValueError(f"similarity_transform: expected two (N>=3, 3) arrays, got {a.shape} and {b.shape}")
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    a0, b0 = a - ma, b - mb
+    u, sv, vt = np.linalg.svd(b0.T @ a0)
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    r = u @ d @ vt
+    s = float((sv * np.diag(d)).sum() / (a0**2).sum()) if with_scale else 1.0
+    t = mb - s * r @ ma
+    return s, r, t
+
+
+def apply_similarity(points: ArrayLike, s: float, r: ArrayLike, t: ArrayLike) -> NDArray[np.float64]:
+    """``s * R @ p + t`` for each row p of an (N, 3) array."""
+    p = np.asarray(points, dtype=np.float64)
+    return s * p @ np.asarray(r, dtype=np.float64).T + np.asarray(t, dtype=np.float64)

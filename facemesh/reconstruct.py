@@ -1,0 +1,692 @@
+"""Surface reconstruction for landmark models that have no triangulation.
+
+dlib's 68 points, ETH-XGaze's 50-point face model or a user's own detector
+give 3D points but no triangles. :func:`ball_pivoting` triangulates them with
+the Ball-Pivoting Algorithm (Bernardini et al. 1999) from Open3D or PyMeshLab,
+then maps the library's output back onto the *input* point indices (vertex i
+of the result is always landmark i: nothing is reordered, merged or removed),
+cleans the triangle list (:func:`clean_triangles`) and orients every triangle
+counter-clockwise seen from the camera (:func:`orient_triangles_toward`).
+
+All points are in the OpenCV camera frame, millimetres (see
+:mod:`facemesh.conventions`); the viewpoint is the camera centre, (0, 0, 0)
+by default.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .types import InputError
+
+__all__ = [
+    "BallPivotingSettings",
+    "Reconstruction",
+    "ball_pivoting",
+    "clean_triangles",
+    "orient_triangles_toward",
+    "median_spacing",
+]
+
+_BACKENDS = ("open3d", "pymeshlab")
+
+#: A triangle whose doubled area is below this fraction of its longest edge
+#: squared (about the sine of its largest angle's supplement) counts as zero-area.
+_DEGENERATE_REL_AREA = 1e-9
+
+#: An output vertex of a backend matches an input point when it lies within
+#: this fraction of the point cloud's extent (covers float32 round-off).
+_MATCH_REL_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class BallPivotingSettings:
+    """How :func:`ball_pivoting` triangulates a point cloud.
+
+    The defaults were tuned on MediaPipe's 468-point canonical face and
+    ETH-XGaze's 50-point face model, frontal and turned up to 40 degrees, with
+    and without 0.3 mm noise (see ``tests/test_reconstruct.py``). Ball-Pivoting's
+    result changes abruptly with the radii, so several scaled copies of the
+    radius schedule are tried and the best result kept.
+
+    Attributes:
+        backend: ``"open3d"`` or ``"pymeshlab"``.
+        radius_factors: ball radii, as multiples of the median
+            nearest-neighbour distance of the points, used in increasing
+            order (each pass fills what the smaller balls left open).
+        radius_scales: the whole schedule ``radius_factors`` is run once per
+            scale (times each scale); the result with the largest visible area
+            (triangle area projected across the line of sight, negative for
+            triangles facing away, so folds do not count) wins, ties going to
+            more vertices used, then to the earlier scale. ``(1.0,)`` runs once.
+        normal_neighbours: number of nearest neighbours used to estimate each
+            point's normal (PCA of the neighbourhood).
+        min_component_fraction: after cleaning, edge-connected components with
+            fewer triangles than this fraction of the largest component's are
+            dropped (0 keeps all, 1 keeps only the largest and any as large).
+        pymeshlab_clustering: PyMeshLab only: its ``clustering`` parameter, in
+            percent of the ball radius (a point closer than this to a vertex
+            already used is skipped, never moved). Ignored by Open3D.
+        pymeshlab_crease_deg: PyMeshLab only: its ``creasethr`` parameter, the
+            largest angle in degrees between neighbouring triangles the ball
+            rolls over. MeshLab's default of 90 folds the lips over one another
+            on the canonical face; 60 does not. Ignored by Open3D.
+    """
+
+    backend: str = "open3d"
+    radius_factors: tuple[float, ...] = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+    radius_scales: tuple[float, ...] = (1.0, 0.8, 1.25)
+    normal_neighbours: int = 12
+    min_component_fraction: float = 0.2
+    pymeshlab_clustering: float = 5.0
+    pymeshlab_crease_deg: float = 60.0
+
+    def __post_init__(self) -> None:
+        if self.backend not in _BACKENDS:
+            raise InputError(f"backend: expected one of {_BACKENDS}, got {self.backend!r}")
+        factors = tuple(float(f) for f in self.radius_factors)
+        if not factors or not all(np.isfinite(f) and f > 0 for f in factors):
+            raise InputError(f"radius_factors: expected one or more positive numbers, got {self.radius_factors}")
+        object.__setattr__(self, "radius_factors", tuple(sorted(factors)))
+        scales = tuple(float(f) for f in self.radius_scales)
+        if not scales or not all(np.isfinite(f) and f > 0 for f in scales):
+            raise InputError(f"radius_scales: expected one or more positive numbers, got {self.radius_scales}")
+        object.__setattr__(self, "radius_scales", scales)
+        if int(self.normal_neighbours) < 3:
+            raise InputError(f"normal_neighbours: expected >= 3, got {self.normal_neighbours}")
+        if not 0.0 <= float(self.min_component_fraction) <= 1.0:
+            raise InputError(f"min_component_fraction: expected a value in [0, 1], got {self.min_component_fraction}")
+        if not 0.0 <= float(self.pymeshlab_clustering) <= 100.0:
+            raise InputError(f"pymeshlab_clustering: expected percent in [0, 100], got {self.pymeshlab_clustering}")
+        if not 0.0 < float(self.pymeshlab_crease_deg) <= 180.0:
+            raise InputError(f"pymeshlab_crease_deg: expected degrees in (0, 180], got {self.pymeshlab_crease_deg}")
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The result of :func:`ball_pivoting`.
+
+    Attributes:
+        triangles: (M, 3) int64 indices into the input point array (vertex
+            index == landmark index), counter-clockwise seen from the viewpoint.
+            Read-only.
+        radii_mm: the ball radii used, millimetres, increasing.
+        backend: ``"open3d"`` or ``"pymeshlab"``.
+        spacing_mm: median nearest-neighbour distance of the points, mm.
+    """
+
+    triangles: NDArray[np.int64]
+    radii_mm: tuple[float, ...]
+    backend: str
+    spacing_mm: float = field(default=float("nan"))
+
+    def __post_init__(self) -> None:
+        t = np.array(self.triangles, dtype=np.int64, copy=True).reshape(-1, 3)
+        t.setflags(write=False)
+        object.__setattr__(self, "triangles", t)
+        object.__setattr__(self, "radii_mm", tuple(float(r) for r in self.radii_mm))
+
+    @property
+    def num_triangles(self) -> int:
+        """Number of triangles M."""
+        return len(self.triangles)
+
+    def as_metadata(self) -> dict[str, Any]:
+        """JSON-serialisable description, for :attr:`facemesh.types.FaceMesh.reconstruction`.
+
+        Returns:
+            ``{"method": "ball_pivoting", "backend": ..., "radii_mm": [...], "num_triangles": M}``.
+        """
+        return {
+            "method": "ball_pivoting",
+            "backend": self.backend,
+            "radii_mm": [float(r) for r in self.radii_mm],
+            "num_triangles": int(len(self.triangles)),
+        }
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _validate_points(points: ArrayLike, name: str = "points_mm") -> NDArray[np.float64]:
+    try:
+        arr = np.array(points, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected an (N, 3) float array, got {type(points).__name__}") from exc
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    if len(arr) < 4:
+        raise InputError(f"{name}: expected at least 4 points, got {len(arr)}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: expected finite values, got NaN or infinite values")
+    return arr
+
+
+def _validate_point3(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: expected 3 finite numbers, got {np.asarray(value).tolist()}")
+    return arr
+
+
+def _validate_triangles(triangles: ArrayLike, num_vertices: int) -> NDArray[np.int64]:
+    t = np.asarray(triangles)
+    if t.size == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise InputError(f"triangles: expected shape (M, 3), got {t.shape}")
+    if not np.issubdtype(t.dtype, np.integer):
+        if not np.all(np.isfinite(t)) or np.any(t != np.round(t)):
+            raise InputError("triangles: expected integer vertex indices")
+    t = t.astype(np.int64)
+    if t.min() < 0 or t.max() >= num_vertices:
+        raise InputError(f"triangles: indices must lie in [0, {num_vertices - 1}], got [{t.min()}, {t.max()}]")
+    return t
+
+
+def median_spacing(points_mm: ArrayLike) -> float:
+    """Median distance from each point to its nearest *distinct* neighbour.
+
+    Args:
+        points_mm: (N, 3) float, N >= 4, any frame, millimetres.
+
+    Returns:
+        The median nearest-neighbour distance, mm (> 0).
+
+    Raises:
+        InputError: on malformed points or fewer than 2 distinct points.
+    """
+    from scipy.spatial import cKDTree
+
+    p = _validate_points(points_mm)
+    unique = np.unique(p, axis=0)
+    if len(unique) < 2:
+        raise InputError("points_mm: all points coincide")
+    d, _ = cKDTree(unique).query(unique, k=2)
+    return float(np.median(d[:, 1]))
+
+
+def _triangle_areas(points: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.float64]:
+    if len(tri) == 0:
+        return np.zeros(0)
+    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def _undirected_edges(tri: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(3M, 2) sorted vertex pairs of every triangle edge, and the triangle of each."""
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], axis=0)
+    e.sort(axis=1)
+    owner = np.tile(np.arange(len(tri), dtype=np.int64), 3)
+    return e, owner
+
+
+def _edge_ids(tri: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64], int]:
+    """An integer id per undirected edge slot (3M,), the owning triangle (3M,), and the number of edges."""
+    e, owner = _undirected_edges(tri)
+    if len(e) == 0:
+        return np.zeros(0, dtype=np.int64), owner, 0
+    _, ids = np.unique(e, axis=0, return_inverse=True)
+    ids = ids.reshape(-1)
+    return ids, owner, int(ids.max()) + 1
+
+
+def _triangle_components(tri: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Label of each triangle's edge-connected component (triangles sharing an edge are connected)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(tri)
+    if m == 0:
+        return np.zeros(0, dtype=np.int64)
+    ids, owner, n_edges = _edge_ids(tri)
+    # bipartite triangle <-> edge graph; triangles connected through an edge node
+    rows = owner
+    cols = m + ids
+    g = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(m + n_edges, m + n_edges))
+    _, labels = connected_components(g, directed=False)
+    return labels[:m].astype(np.int64)
+
+
+def _vertex_fans(tri: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Fan label of every corner (3M,) and the vertex of every corner (3M,).
+
+    Two corners at the same vertex v belong to the same fan when their
+    triangles share an edge that contains v. Assumes edges are manifold.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(tri)
+    corner_vertex = tri.T.reshape(-1)  # corner c = k * m + t  <->  tri[t, k]
+    nxt = np.roll(tri, -1, axis=1).T.reshape(-1)
+    prv = np.roll(tri, 1, axis=1).T.reshape(-1)
+    corners = np.arange(3 * m, dtype=np.int64)
+    # each corner touches two edges (v, nxt) and (v, prv); key them by (v, other)
+    keys = np.concatenate([np.stack([corner_vertex, nxt], 1), np.stack([corner_vertex, prv], 1)])
+    who = np.concatenate([corners, corners])
+    _, key_id = np.unique(keys, axis=0, return_inverse=True)
+    key_id = key_id.reshape(-1)
+    n_keys = int(key_id.max()) + 1 if len(key_id) else 0
+    g = coo_matrix((np.ones(len(who)), (who, 3 * m + key_id)), shape=(3 * m + n_keys, 3 * m + n_keys))
+    _, labels = connected_components(g, directed=False)
+    return labels[: 3 * m].astype(np.int64), corner_vertex
+
+
+# --------------------------------------------------------------------------- cleaning
+
+
+def _drop_non_manifold_edges(tri: NDArray[np.int64], priority: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Keep-mask: accept triangles in increasing ``priority``; refuse one that would be an edge's third."""
+    m = len(tri)
+    keep = np.ones(m, dtype=bool)
+    if m == 0:
+        return keep
+    ids, owner, n_edges = _edge_ids(tri)
+    count = np.bincount(ids, minlength=n_edges)
+    if count.max() <= 2:
+        return keep
+    # only triangles touching an over-used edge can be refused; visit them in priority order
+    involved = np.unique(owner[count[ids] > 2])
+    edge_of = ids.reshape(3, m).T  # (M, 3) edge ids of each triangle
+    used = count.copy()
+    for t in involved:
+        used[edge_of[t]] -= 1  # start with every involved triangle out ...
+    for t in involved[np.lexsort((involved, priority[involved]))]:
+        e = edge_of[t]
+        if np.all(used[e] < 2):  # ... and put back those that fit
+            used[e] += 1
+        else:
+            keep[t] = False
+    return keep
+
+
+def _drop_non_manifold_vertices(tri: NDArray[np.int64], areas: NDArray[np.float64] | None) -> NDArray[np.bool_]:
+    """Keep-mask: at a vertex with several fans keep the fan with most triangles (then most area)."""
+    m = len(tri)
+    keep = np.ones(m, dtype=bool)
+    if m == 0:
+        return keep
+    fan, vert = _vertex_fans(tri)
+    owner = np.tile(np.arange(m, dtype=np.int64), 3)
+    pairs = np.unique(np.stack([vert, fan], 1), axis=0)
+    verts, n_fans = np.unique(pairs[:, 0], return_counts=True)
+    bad = set(verts[n_fans > 1].tolist())
+    if not bad:
+        return keep
+    w = np.ones(m) if areas is None else areas
+    for v in sorted(bad):
+        sel = np.flatnonzero(vert == v)
+        labels = fan[sel]
+        best, best_key = None, None
+        for lab in np.unique(labels):
+            tris = owner[sel[labels == lab]]
+            key = (len(tris), float(w[tris].sum()), -int(lab))
+            if best_key is None or key > best_key:
+                best, best_key = lab, key
+        keep[owner[sel[labels != best]]] = False
+    return keep
+
+
+def clean_triangles(
+    triangles: ArrayLike,
+    num_vertices: int,
+    *,
+    min_component_fraction: float = 0.2,
+    points: ArrayLike | None = None,
+) -> NDArray[np.int64]:
+    """Make a triangle list a clean, manifold surface, touching only the index array.
+
+    Vertices are never removed or renumbered; triangles are only dropped (their
+    winding is kept; use :func:`orient_triangles_toward` afterwards). In order:
+
+    1. Degenerate triangles: a repeated vertex index, or (when ``points`` is
+       given) zero area (doubled area below 1e-9 times the longest edge squared).
+    2. Duplicates: triangles on the same vertex set, in either winding; the
+       first one is kept.
+    3. Non-manifold edges (used by more than two triangles): triangles are
+       accepted greedily in increasing order of area when ``points`` is given
+       (ties, and without points: in increasing index order, i.e. earlier
+       triangles first); a triangle that would become the third on any of its
+       edges is dropped. Large triangles spanning across the surface, which
+       Ball-Pivoting's bigger radii create, are thus the ones dropped. Only
+       triangles touching an over-used edge can be dropped.
+    4. Non-manifold vertices (whose triangles form more than one fan connected
+       through edges at that vertex): the fan with most triangles (then most
+       area) is kept, the triangles of the other fans dropped. Steps 3-4 repeat
+       until nothing changes.
+    5. Small components: edge-connected components with fewer triangles than
+       ``min_component_fraction`` times the largest component's are dropped.
+
+    Args:
+        triangles: (M, 3) integer vertex indices.
+        num_vertices: N, the number of vertices the indices refer to.
+        min_component_fraction: in [0, 1]; 0 keeps every component.
+        points: optional (N, 3) float vertex positions, enabling the area tests.
+
+    Returns:
+        (M', 3) int64, a subset of the input rows in their original order and winding.
+
+    Raises:
+        InputError: on malformed triangles, indices out of range, bad points.
+    """
+    n = int(num_vertices)
+    tri = _validate_triangles(triangles, n)
+    if not 0.0 <= float(min_component_fraction) <= 1.0:
+        raise InputError(f"min_component_fraction: expected a value in [0, 1], got {min_component_fraction}")
+    pts: NDArray[np.float64] | None = None
+    if points is not None:
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.shape != (n, 3) or not np.all(np.isfinite(pts)):
+            raise InputError(f"points: expected finite shape ({n}, 3), got {pts.shape}")
+    if len(tri) == 0:
+        return tri
+
+    # 1. degenerate
+    ok = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 2] != tri[:, 0])
+    if pts is not None:
+        a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+        cross = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        longest = np.max(np.stack([np.sum((b - a) ** 2, 1), np.sum((c - b) ** 2, 1), np.sum((a - c) ** 2, 1)]), 0)
+        ok &= cross > _DEGENERATE_REL_AREA * longest
+    tri = tri[ok]
+
+    # 2. duplicates (same vertex set), first kept
+    if len(tri):
+        _, first = np.unique(np.sort(tri, axis=1), axis=0, return_index=True)
+        tri = tri[np.sort(first)]
+
+    # 3-4. non-manifold edges and vertices
+    for _ in range(100):
+        if len(tri) == 0:
+            break
+        areas = _triangle_areas(pts, tri) if pts is not None else None
+        priority = areas if areas is not None else np.zeros(len(tri))
+        keep = _drop_non_manifold_edges(tri, priority)
+        tri = tri[keep]
+        areas = areas[keep] if areas is not None else None
+        keep = _drop_non_manifold_vertices(tri, areas)
+        tri = tri[keep]
+        if keep.all():
+            break
+
+    # 5. small components
+    if len(tri) and min_component_fraction > 0:
+        labels = _triangle_components(tri)
+        sizes = np.bincount(labels)
+        tri = tri[sizes[labels] >= float(min_component_fraction) * sizes.max()]
+    return np.ascontiguousarray(tri, dtype=np.int64)
+
+
+def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: ArrayLike) -> NDArray[np.int64]:
+    """Orient triangles consistently, counter-clockwise seen from ``viewpoint``.
+
+    Within each edge-connected component the winding is propagated across
+    shared edges (breadth-first from the component's first triangle: a
+    neighbour that traverses the shared edge in the same direction is flipped),
+    so that every interior edge is used once in each direction. Then the whole
+    component is flipped if fewer than half of its triangles (by count; ties by
+    area) have their normal ``(b - a) x (c - a)`` pointing toward
+    ``viewpoint`` from their centroid. A non-orientable component (impossible
+    for Ball-Pivoting output on a face) keeps the propagation's result.
+
+    Args:
+        points: (N, 3) float vertex positions.
+        triangles: (M, 3) integer vertex indices; edges should be manifold.
+        viewpoint: (3,) float, same frame as ``points`` (the camera centre).
+
+    Returns:
+        (M, 3) int64, the same triangles in the same order, some with two
+        indices swapped.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+        raise InputError(f"points: expected a finite (N, 3) array, got {pts.shape}")
+    tri = _validate_triangles(triangles, len(pts)).copy()
+    view = _validate_point3(viewpoint, "viewpoint")
+    m = len(tri)
+    if m == 0:
+        return tri
+
+    # adjacency through undirected edges
+    ids, owner, n_edges = _edge_ids(tri)
+    order = np.argsort(ids, kind="stable")
+    sorted_ids = ids[order]
+    starts = np.searchsorted(sorted_ids, np.arange(n_edges))
+    ends = np.searchsorted(sorted_ids, np.arange(n_edges), side="right")
+    edge_of = ids.reshape(3, m).T
+
+    def directed(t: int, e_local: int) -> tuple[int, int]:
+        k = e_local
+        return int(tri[t, k]), int(tri[t, (k + 1) % 3])
+
+    # edge slot k of triangle t is (tri[t,k], tri[t,k+1]); _undirected_edges used the same order
+    visited = np.zeros(m, dtype=bool)
+    labels = np.full(m, -1, dtype=np.int64)
+    n_comp = 0
+    for seed in range(m):
+        if visited[seed]:
+            continue
+        visited[seed] = True
+        labels[seed] = n_comp
+        queue = [seed]
+        while queue:
+            t = queue.pop()
+            for k in range(3):
+                e = edge_of[t, k]
+                a, b = directed(t, k)
+                for slot in order[starts[e] : ends[e]]:
+                    u = int(owner[slot])
+                    if u == t or visited[u]:
+                        continue
+                    ku = int(slot // m)
+                    ua, ub = directed(u, ku)
+                    if (ua, ub) == (a, b):  # same direction: flip u (swap two indices)
+                        tri[u, [1, 2]] = tri[u, [2, 1]]
+                        # (a, b, c) -> (a, c, b): edges [ab, bc, ca] -> [ac, cb, ba] = old [2, 1, 0]
+                        edge_of[u] = edge_of[u][[2, 1, 0]]
+                    visited[u] = True
+                    labels[u] = n_comp
+                    queue.append(u)
+        n_comp += 1
+
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    normal = np.cross(b - a, c - a)
+    facing = np.sum(normal * (view - (a + b + c) / 3.0), axis=1)
+    for comp in range(n_comp):
+        sel = labels == comp
+        votes = np.sign(facing[sel]).sum()
+        if votes < 0 or (votes == 0 and facing[sel].sum() < 0):
+            tri[np.flatnonzero(sel)[:, None], [1, 2]] = tri[np.flatnonzero(sel)[:, None], [2, 1]]
+    return tri
+
+
+# --------------------------------------------------------------------------- backends
+
+
+def _import_open3d() -> Any:
+    try:
+        import open3d as o3d
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "Ball-Pivoting with backend='open3d' needs Open3D: pip install open3d "
+            f"(on Linux it also needs libusb-1.0: apt-get install libusb-1.0-0). Import failed with: {exc}"
+        ) from exc
+    return o3d
+
+
+def _import_pymeshlab() -> Any:
+    try:
+        import pymeshlab
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            f"Ball-Pivoting with backend='pymeshlab' needs PyMeshLab: pip install pymeshlab. Import failed with: {exc}"
+        ) from exc
+    return pymeshlab
+
+
+def _bpa_open3d(
+    points: NDArray[np.float64],
+    viewpoint: NDArray[np.float64],
+    schedules: list[tuple[float, ...]],
+    settings: BallPivotingSettings,
+) -> list[tuple[NDArray[np.float64], NDArray[np.int64]]]:
+    o3d = _import_open3d()
+    k = min(int(settings.normal_neighbours), len(points))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=k))
+    pcd.orient_normals_towards_camera_location(viewpoint)
+    # Flipping every normal toward the camera on its own gets the far side of
+    # a turned head wrong (its true normals face away from the camera), and
+    # Open3D's BPA then refuses to triangulate it. So propagate one
+    # orientation over the surface, then flip all normals together if most
+    # of them face away from the camera.
+    # (Open3D builds a Delaunay graph with Qhull for this, which fails on
+    # coplanar or collinear points: those keep the per-point orientation.)
+    try:
+        pcd.orient_normals_consistent_tangent_plane(k)
+    except RuntimeError:
+        pcd.orient_normals_towards_camera_location(viewpoint)
+    n = np.asarray(pcd.normals)
+    if np.count_nonzero(np.sum(n * (viewpoint - points), axis=1) > 0) * 2 < len(n):
+        pcd.normals = o3d.utility.Vector3dVector(-n)
+    out = []
+    for radii in schedules:
+        mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pcd, o3d.utility.DoubleVector(list(radii)))
+        out.append((np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)))
+    return out
+
+
+def _bpa_pymeshlab(
+    points: NDArray[np.float64],
+    viewpoint: NDArray[np.float64],
+    schedules: list[tuple[float, ...]],
+    settings: BallPivotingSettings,
+) -> list[tuple[NDArray[np.float64], NDArray[np.int64]]]:
+    pymeshlab = _import_pymeshlab()
+    k = min(int(settings.normal_neighbours), len(points))
+    # PyMeshLab 2023+ calls an absolute parameter value PureValue; older ones AbsoluteValue
+    absolute = getattr(pymeshlab, "PureValue", None) or pymeshlab.AbsoluteValue
+    out = []
+    for radii in schedules:
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+        ms.compute_normal_for_point_clouds(k=k, smoothiter=0, flipflag=True, viewpos=viewpoint)
+        # One radius per call, increasing: with deletefaces=False each pass
+        # starts from the faces of the previous one (MeshLab's documented way
+        # of running the filter with growing radii).
+        for r in radii:
+            ms.generate_surface_reconstruction_ball_pivoting(
+                ballradius=absolute(float(r)),
+                clustering=float(settings.pymeshlab_clustering),
+                creasethr=float(settings.pymeshlab_crease_deg),
+                deletefaces=False,
+            )
+        m = ms.current_mesh()
+        out.append((np.asarray(m.vertex_matrix(), dtype=np.float64), np.asarray(m.face_matrix(), dtype=np.int64)))
+    return out
+
+
+def _visible_area(points: NDArray[np.float64], tri: NDArray[np.int64], viewpoint: NDArray[np.float64]) -> float:
+    """Sum over triangles of their area projected across the line of sight (negative when facing away), mm^2.
+
+    Folds cancel (front + back + front counts once), so the more of the
+    surface a triangulation covers without folding, the larger this is.
+    """
+    if len(tri) == 0:
+        return 0.0
+    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    area_vec = 0.5 * np.cross(b - a, c - a)
+    sight = viewpoint - (a + b + c) / 3.0
+    sight /= np.maximum(np.linalg.norm(sight, axis=1, keepdims=True), 1e-300)
+    return float(np.sum(area_vec * sight))
+
+
+def _map_to_input(
+    points: NDArray[np.float64], out_vertices: NDArray[np.float64], out_triangles: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """Re-index a backend's triangles onto the input points by exact coordinate match."""
+    from scipy.spatial import cKDTree
+
+    if len(out_triangles) == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    extent = float(np.max(np.abs(points))) if len(points) else 1.0
+    tol = _MATCH_REL_TOL * max(extent, 1e-12)
+    used = np.unique(out_triangles)
+    if used.min() < 0 or used.max() >= len(out_vertices):
+        raise RuntimeError("ball pivoting backend returned triangle indices outside its vertex list")
+    d, idx = cKDTree(points).query(out_vertices[used], k=1)
+    if np.any(d > tol):
+        worst = int(np.argmax(d))
+        raise RuntimeError(
+            f"ball pivoting backend returned a vertex {out_vertices[used][worst].tolist()} that matches no "
+            f"input point (nearest {d[worst]:.3g} mm away, tolerance {tol:.3g} mm)"
+        )
+    lut = np.full(len(out_vertices), -1, dtype=np.int64)
+    lut[used] = idx
+    return lut[out_triangles]
+
+
+def ball_pivoting(
+    points_mm: ArrayLike,
+    viewpoint_mm: ArrayLike = (0.0, 0.0, 0.0),
+    settings: BallPivotingSettings = BallPivotingSettings(),
+) -> Reconstruction:
+    """Triangulate landmark points with the Ball-Pivoting Algorithm.
+
+    Steps:
+
+    1. Normals: PCA over each point's ``settings.normal_neighbours`` nearest
+       neighbours, oriented toward ``viewpoint_mm``. Open3D: ``estimate_normals``
+       + ``orient_normals_towards_camera_location``, then
+       ``orient_normals_consistent_tangent_plane`` and one global flip so that
+       most normals face the camera (so the far cheek of a turned head keeps its
+       outward normals). PyMeshLab: ``compute_normal_for_point_clouds`` with
+       ``flipflag``/``viewpos`` (its ball pivoting filter did not depend on
+       them in PyMeshLab 2025.7).
+    2. Radii: ``settings.radius_factors`` times the median nearest-neighbour
+       distance, times each of ``settings.radius_scales`` (one run per scale).
+    3. The backend's triangles are mapped back onto the input indices by exact
+       coordinate match (a KD-tree query with a tolerance of 1e-6 of the largest
+       coordinate); a vertex that matches no input point is an error. (Both
+       backends returned the input points unchanged, in order, in the
+       installed versions; the check guards against other versions.)
+    4. :func:`clean_triangles` (with the points, so area-based rules apply),
+       then :func:`orient_triangles_toward` the viewpoint.
+    5. Of the runs, the one with the largest visible area is returned (see
+       :class:`BallPivotingSettings`).
+
+    Args:
+        points_mm: (N, 3) float, N >= 4, millimetres, OpenCV camera frame.
+        viewpoint_mm: (3,) float, camera frame mm: where the surface is seen
+            from (the camera centre).
+        settings: backend, radii and cleaning parameters.
+
+    Returns:
+        A :class:`Reconstruction` whose triangles index ``points_mm`` directly.
+
+    Raises:
+        InputError: malformed points (not (N, 3), N < 4, NaN/inf, all coincident).
+        ImportError: the backend library is missing (with an install hint).
+        RuntimeError: the backend returned a vertex that is not an input point.
+    """
+    pts = _validate_points(points_mm)
+    view = _validate_point3(viewpoint_mm, "viewpoint_mm")
+    spacing = median_spacing(pts)
+    schedules = [tuple(float(f) * float(sc) * spacing for f in settings.radius_factors) for sc in settings.radius_scales]
+    run = _bpa_open3d if settings.backend == "open3d" else _bpa_pymeshlab
+    best: tuple[float, int, int] | None = None
+    chosen: tuple[NDArray[np.int64], tuple[float, ...]] | None = None
+    for attempt, ((out_v, out_t), radii) in enumerate(zip(run(pts, view, schedules, settings), schedules)):
+        tri = _map_to_input(pts, out_v, out_t)
+        tri = clean_triangles(tri, len(pts), min_component_fraction=settings.min_component_fraction, points=pts)
+        tri = orient_triangles_toward(pts, tri, view)
+        key = (_visible_area(pts, tri, view), len(np.unique(tri)), -attempt)
+        if best is None or key > best:
+            best, chosen = key, (tri, radii)
+    assert chosen is not None
+    return Reconstruction(triangles=chosen[0], radii_mm=chosen[1], backend=settings.backend, spacing_mm=spacing)

@@ -1,0 +1,119 @@
+"""The shipped face model: close to MediaPipe's reference, clean triangulation, documented frame."""
+
+import numpy as np
+import pytest
+
+from facemesh import builtin_face_model, load_face_model
+from facemesh.face_models import EYE_CORNERS, export_obj, mirror_permutation
+from facemesh.face_models.triangulation import boundary_loops, edge_use_counts
+from facemesh.geometry import apply_similarity, similarity_transform
+
+
+@pytest.fixture(scope="module")
+def model():
+    return builtin_face_model()
+
+
+def _rms_after_similarity(a, b):
+    s, r, t = similarity_transform(a, b)
+    return float(np.sqrt(np.mean(np.sum((apply_similarity(a, s, r, t) - b) ** 2, axis=1))))
+
+
+def test_similarity_transform_recovers_a_known_transform():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(20, 3))
+    th = 0.3
+    r = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    b = 2.5 * a @ r.T + [1.0, -2.0, 3.0]
+    s, r2, t = similarity_transform(a, b)
+    assert s == pytest.approx(2.5)
+    np.testing.assert_allclose(r2, r, atol=1e-12)
+    np.testing.assert_allclose(t, [1.0, -2.0, 3.0], atol=1e-12)
+
+
+def test_builtin_model_shape(model):
+    assert model.vertices_mm.shape == (468, 3)
+    assert model.triangles is not None and model.triangles.shape == (898, 3)
+
+
+def test_within_7mm_rms_of_mediapipe_reference(model, reference_model_path):
+    ref = load_face_model(reference_model_path)
+    rms = _rms_after_similarity(model.vertices_mm, ref.vertices_mm)
+    assert rms <= 7.0, f"{rms:.2f} mm RMS"
+
+
+def test_reference_loads_alike_from_obj_and_pbtxt(reference_model_path):
+    obj = load_face_model(reference_model_path)
+    pbtxt = load_face_model(reference_model_path.parent / "geometry_pipeline_metadata_landmarks.pbtxt")
+    np.testing.assert_allclose(obj.vertices_mm, pbtxt.vertices_mm, atol=1e-9)
+    assert pbtxt.triangles is not None and len(pbtxt.triangles) == 898
+
+
+def test_head_frame_axes(model):
+    v = model.vertices_mm
+    right_eye = v[list(EYE_CORNERS["right"])].mean(axis=0)
+    left_eye = v[list(EYE_CORNERS["left"])].mean(axis=0)
+    np.testing.assert_allclose((right_eye + left_eye) / 2, 0, atol=1e-9)  # origin between the eyes
+    assert right_eye[0] < 0 < left_eye[0]  # x toward the subject's left
+    assert v[152, 1] > 80  # chin (152) far down +y
+    assert v[1, 2] < -20  # nose tip (1) toward the viewer, -z
+    eye_distance = np.linalg.norm(left_eye - right_eye)
+    assert 55 < eye_distance < 70  # metric scale: adult eye-centre distance
+
+
+def test_mirror_permutation_matches_the_reference_symmetry(model, reference_model_path):
+    # The reference is exactly left-right symmetric; our derived partner
+    # permutation must map it onto its own mirror image.
+    ref = load_face_model(reference_model_path).vertices_mm
+    perm = mirror_permutation()
+    np.testing.assert_allclose(ref[perm] * [-1, 1, 1], ref, atol=1e-4)
+    np.testing.assert_allclose(model.vertices_mm[perm] * [-1, 1, 1], model.vertices_mm, atol=1e-6)
+
+
+def test_triangulation_is_manifold_oriented_and_closes_eyes_and_mouth(model):
+    tri = model.triangles
+    counts = edge_use_counts(tri)
+    assert max(counts.values()) == 2
+    directed = [(a, b) for t in tri.tolist() for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))]
+    assert len(directed) == len(set(directed)), "some directed edge appears twice: inconsistent winding"
+    loops = boundary_loops(tri)
+    assert [len(loop) for loop in loops] == [36], "only the outer face contour may stay open"
+    # Every vertex used; disk topology: V - E + F = 1
+    assert len(np.unique(tri)) == 468
+    assert 468 - len(counts) + len(tri) == 1
+    # Right-hand normals point out of the face (toward -z in the head frame).
+    v = model.vertices_mm
+    n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    assert (n[:, 2] < 0).mean() > 0.95
+
+
+def test_eye_contours_are_interior(model):
+    # MediaPipe's own eye-contour edge lists: each edge must be shared by two
+    # triangles, i.e. the eye opening is covered.
+    fm = pytest.importorskip("mediapipe").solutions.face_mesh
+    counts = edge_use_counts(model.triangles)
+    for edges in (fm.FACEMESH_LEFT_EYE, fm.FACEMESH_RIGHT_EYE):
+        for a, b in edges:
+            assert counts[(min(a, b), max(a, b))] == 2, f"eye edge {(a, b)} is open"
+
+
+def test_export_obj_round_trip(model, tmp_path):
+    path = tmp_path / "model.obj"
+    path.write_text(export_obj(model))
+    back = load_face_model(path)
+    np.testing.assert_allclose(back.vertices_mm, model.vertices_mm, atol=1e-6)
+    np.testing.assert_array_equal(back.triangles, model.triangles)
+
+
+def test_mpii_six_point_model_loads_3xN(mpii_sample):
+    m = load_face_model(mpii_sample / "faceModelGeneric.txt")
+    assert m.vertices_mm.shape == (6, 3)
+    assert m.vertices_mm[0, 0] < 0 < m.vertices_mm[3, 0]  # eye corners left to right in x
+
+
+def test_derivation_reproduces_the_shipped_model(model):
+    from facemesh.face_models.derive_mediapipe import derive
+
+    arrays = derive()
+    np.testing.assert_allclose(arrays["vertices_mm"], model.vertices_mm, atol=0.05)
+    np.testing.assert_array_equal(arrays["triangles"], model.triangles)
