@@ -119,8 +119,8 @@ def _read_filestorage(p: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int] 
         raise InputError(f"{p}: not an OpenCV FileStorage file (XML, YAML or JSON)")
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise InputError(f"{p}: malformed calibration file: {exc.err if hasattr(exc, 'err') else exc}") from exc
+    except (cv2.error, SystemError) as exc:  # OpenCV's parser errors surface as either
+        raise InputError(f"{p}: malformed calibration file ({str(exc).strip().splitlines()[-1]})") from exc
     try:
         if not fs.isOpened():
             raise InputError(f"{p}: cannot open as an OpenCV FileStorage file")

@@ -66,6 +66,10 @@ def undistort_to_rays(points_px: ArrayLike, camera: CameraIntrinsics) -> NDArray
 def solve_head_pose(landmarks_px: ArrayLike, model_points_mm: ArrayLike, camera: CameraIntrinsics) -> HeadPose:
     """Rigid pose of a face model that best explains its landmarks.
 
+    EPnP gives the initial pose and Levenberg-Marquardt (``SOLVEPNP_ITERATIVE``
+    with the initial guess) refines it; SQPnP replaces EPnP when that fails or
+    puts the face behind the camera.
+
     Args:
         landmarks_px: (N, 2) float, pixels, image frame (as observed, distorted).
         model_points_mm: (N, 3) float, mm, head frame; row i matches landmark i.
@@ -113,9 +117,10 @@ def solve_head_pose(landmarks_px: ArrayLike, model_points_mm: ArrayLike, camera:
         err = project_points(cam_pts, camera) - img
         rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
         candidates.append((rms, rot, tvec.ravel()))
+        break  # EPnP's refined pose is valid; SQPnP is only the fallback
     if not candidates:
         raise PoseError("PnP found no pose with the face in front of the camera")
-    rms, rot, t = min(candidates, key=lambda c: c[0])
+    rms, rot, t = candidates[0]
     return HeadPose(
         rotation=np.asarray(rot, dtype=np.float64),
         translation_mm=np.asarray(t, dtype=np.float64),

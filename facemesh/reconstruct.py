@@ -426,13 +426,14 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
     """Orient triangles consistently, counter-clockwise seen from ``viewpoint``.
 
     Within each edge-connected component the winding is propagated across
-    shared edges (breadth-first from the component's first triangle: a
-    neighbour that traverses the shared edge in the same direction is flipped),
-    so that every interior edge is used once in each direction. Then the whole
-    component is flipped if fewer than half of its triangles (by count; ties by
-    area) have their normal ``(b - a) x (c - a)`` pointing toward
-    ``viewpoint`` from their centroid. A non-orientable component (impossible
-    for Ball-Pivoting output on a face) keeps the propagation's result.
+    shared edges, walking the component from its first triangle: a neighbour
+    that traverses the shared edge in the same direction as the triangle it
+    is reached from is flipped, so that every interior edge ends up used once
+    in each direction. Then the whole component is flipped if more of its
+    triangles have their normal ``(b - a) x (c - a)`` pointing away from
+    ``viewpoint`` (seen from their centroid) than toward it; a tie goes by the
+    sum of ``normal . (viewpoint - centroid)``. A non-orientable component
+    (impossible for Ball-Pivoting output on a face) keeps the walk's result.
 
     Args:
         points: (N, 3) float vertex positions.
@@ -460,11 +461,10 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
     ends = np.searchsorted(sorted_ids, np.arange(n_edges), side="right")
     edge_of = ids.reshape(3, m).T
 
-    def directed(t: int, e_local: int) -> tuple[int, int]:
-        k = e_local
+    def directed(t: int, k: int) -> tuple[int, int]:
+        # edge slot k of triangle t runs tri[t, k] -> tri[t, k + 1], the order _undirected_edges uses
         return int(tri[t, k]), int(tri[t, (k + 1) % 3])
 
-    # edge slot k of triangle t is (tri[t,k], tri[t,k+1]); _undirected_edges used the same order
     visited = np.zeros(m, dtype=bool)
     labels = np.full(m, -1, dtype=np.int64)
     n_comp = 0
@@ -473,9 +473,9 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
             continue
         visited[seed] = True
         labels[seed] = n_comp
-        queue = [seed]
-        while queue:
-            t = queue.pop()
+        stack = [seed]
+        while stack:
+            t = stack.pop()
             for k in range(3):
                 e = edge_of[t, k]
                 a, b = directed(t, k)
@@ -491,7 +491,7 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
                         edge_of[u] = edge_of[u][[2, 1, 0]]
                     visited[u] = True
                     labels[u] = n_comp
-                    queue.append(u)
+                    stack.append(u)
         n_comp += 1
 
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
@@ -501,7 +501,8 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
         sel = labels == comp
         votes = np.sign(facing[sel]).sum()
         if votes < 0 or (votes == 0 and facing[sel].sum() < 0):
-            tri[np.flatnonzero(sel)[:, None], [1, 2]] = tri[np.flatnonzero(sel)[:, None], [2, 1]]
+            rows = np.flatnonzero(sel)[:, None]
+            tri[rows, [1, 2]] = tri[rows, [2, 1]]
     return tri
 
 
@@ -556,7 +557,9 @@ def _bpa_open3d(
         pcd.normals = o3d.utility.Vector3dVector(-n)
     out = []
     for radii in schedules:
-        mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pcd, o3d.utility.DoubleVector(list(radii)))
+        mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(
+            pcd, o3d.utility.DoubleVector(list(radii))
+        )
         out.append((np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)))
     return out
 
@@ -677,7 +680,9 @@ def ball_pivoting(
     pts = _validate_points(points_mm)
     view = _validate_point3(viewpoint_mm, "viewpoint_mm")
     spacing = median_spacing(pts)
-    schedules = [tuple(float(f) * float(sc) * spacing for f in settings.radius_factors) for sc in settings.radius_scales]
+    schedules = [
+        tuple(float(f) * float(sc) * spacing for f in settings.radius_factors) for sc in settings.radius_scales
+    ]
     run = _bpa_open3d if settings.backend == "open3d" else _bpa_pymeshlab
     best: tuple[float, int, int] | None = None
     chosen: tuple[NDArray[np.int64], tuple[float, ...]] | None = None

@@ -5,8 +5,8 @@ import json
 import cv2
 import numpy as np
 import pytest
-
 from conftest import SINGLE_FACE_PHOTOS
+
 from facemesh import (
     CameraIntrinsics,
     InputError,
@@ -19,8 +19,7 @@ from facemesh import (
     solve_head_pose,
 )
 from facemesh.conventions import angular_error_deg
-from facemesh.landmarks import select_face
-from facemesh.landmarks import load_landmarks_file
+from facemesh.landmarks import load_landmarks_file, select_face
 from facemesh.pose import project_points, undistort_to_rays
 from facemesh.types import FaceLandmarks
 
@@ -94,7 +93,9 @@ def test_landmark_file_errors(tmp_path):
 def test_pnp_recovers_a_known_pose_with_distortion():
     model = builtin_face_model()
     cam = CameraIntrinsics(
-        matrix=[[900.0, 0, 640], [0, 905.0, 360], [0, 0, 1]], distortion=[-0.2, 0.1, 0.001, -0.002, 0.0], image_size=(1280, 720)
+        matrix=[[900.0, 0, 640], [0, 905.0, 360], [0, 0, 1]],
+        distortion=[-0.2, 0.1, 0.001, -0.002, 0.0],
+        image_size=(1280, 720),
     )
     rvec = np.array([0.2, -0.3, 0.05])
     r = cv2.Rodrigues(rvec)[0]

@@ -23,8 +23,11 @@ declare -A LIBS=(
   [libvulkan.so.1]=libvulkan1
 )
 missing=()
+# Read the cache once: `ldconfig -p | grep -q` under pipefail fails at random
+# (grep exits early and ldconfig dies of SIGPIPE).
+libcache=$(ldconfig -p 2>/dev/null || true)
 for lib in "${!LIBS[@]}"; do
-  ldconfig -p 2>/dev/null | grep -q "$lib" || missing+=("${LIBS[$lib]}")
+  grep -qF "$lib" <<<"$libcache" || missing+=("${LIBS[$lib]}")
 done
 # Mesa's Vulkan drivers (lavapipe) for Open3D's Filament renderer on machines without a GPU.
 if command -v dpkg-query >/dev/null && ! dpkg-query -W -f='${Status}' mesa-vulkan-drivers 2>/dev/null | grep -q "ok installed"; then
