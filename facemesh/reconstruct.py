@@ -509,17 +509,6 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
 # --------------------------------------------------------------------------- backends
 
 
-def _import_open3d() -> Any:
-    try:
-        import open3d as o3d
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "Ball-Pivoting with backend='open3d' needs Open3D: pip install open3d "
-            f"(on Linux it also needs libusb-1.0: apt-get install libusb-1.0-0). Import failed with: {exc}"
-        ) from exc
-    return o3d
-
-
 def _import_pymeshlab() -> Any:
     try:
         import pymeshlab
@@ -536,7 +525,9 @@ def _bpa_open3d(
     schedules: list[tuple[float, ...]],
     settings: BallPivotingSettings,
 ) -> list[tuple[NDArray[np.float64], NDArray[np.int64]]]:
-    o3d = _import_open3d()
+    from .render import import_open3d
+
+    o3d = import_open3d()
     k = min(int(settings.normal_neighbours), len(points))
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=k))
