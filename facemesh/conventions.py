@@ -64,6 +64,7 @@ __all__ = [
     "rotation_yaw",
     "rotation_pitch",
     "rotation_from_yaw_pitch",
+    "yaw_pitch_from_rotation",
     "angular_error_deg",
 ]
 
@@ -232,6 +233,25 @@ def rotation_from_yaw_pitch(yaw_rad: float, pitch_rad: float) -> NDArray[np.floa
         (3, 3) float64 rotation, camera frame.
     """
     return rotation_pitch(pitch_rad) @ rotation_yaw(yaw_rad)
+
+
+def yaw_pitch_from_rotation(rotation: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of :func:`rotation_from_yaw_pitch` for the direction the face points.
+
+    The (yaw, pitch) whose ``R(y, p)`` turns a frontal face to point where
+    ``rotation`` makes it point (``-rotation[:, 2]``); roll is not represented.
+    ``yaw = asin(R[0, 2])``, ``pitch = atan2(R[1, 2], R[2, 2])``.
+
+    Args:
+        rotation: (3, 3) float, head frame -> camera frame.
+
+    Returns:
+        (2,) float64 radians, (yaw, pitch): note the order, the paper's ``R(y, p)``.
+    """
+    r = np.asarray(rotation, dtype=np.float64)
+    if r.shape != (3, 3):
+        raise ValueError(f"rotation: expected shape (3, 3), got {r.shape}")
+    return np.array([np.arcsin(np.clip(r[0, 2], -1.0, 1.0)), np.arctan2(r[1, 2], r[2, 2])])
 
 
 def angular_error_deg(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:

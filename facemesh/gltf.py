@@ -189,6 +189,7 @@ def _metadata(mesh: FaceMesh) -> dict[str, Any]:
             "points_3d": None if lm.points_3d is None else lm.points_3d.tolist(),
         },
         "face_model_name": mesh.face_model_name,
+        "face_model_vertices_mm": None if mesh.model_vertices_mm is None else mesh.model_vertices_mm.tolist(),
         "vertex_placement": mesh.vertex_placement,
         "reconstruction": dict(mesh.reconstruction),
         "extras": dict(mesh.extras),
@@ -231,7 +232,8 @@ def gltf_bytes(mesh: FaceMesh, *, texture_format: str = "png") -> bytes:
     ``camera`` (``image_size``, 3x3 ``matrix``, ``distortion``, ``source``),
     ``pose`` (3x3 ``rotation``, ``translation_mm``, ``reprojection_error_px``),
     ``landmarks`` (``model_name``, ``points_px`` (L x 2), ``points_3d`` (L x 3 or
-    null)), ``face_model_name``, ``vertex_placement``, ``reconstruction`` and
+    null)), ``face_model_name``, ``face_model_vertices_mm`` (N x 3, head frame, or null),
+    ``vertex_placement``, ``reconstruction`` and
     ``extras``. See the module docstring for the layout.
 
     Args:
@@ -619,6 +621,7 @@ def _build_mesh(gltf: Mapping[str, Any], binary: bytes, meta: Mapping[str, Any],
         points_3d=None if points_3d is None else np.array(points_3d, dtype=np.float64),
     )
     origin = meta["texture_origin_px"]
+    model_vertices = meta.get("face_model_vertices_mm")
     return FaceMesh(
         vertices_mm=gltf_to_opencv_points(positions.astype(np.float64)),
         triangles=triangles,
@@ -632,4 +635,5 @@ def _build_mesh(gltf: Mapping[str, Any], binary: bytes, meta: Mapping[str, Any],
         vertex_placement=str(meta["vertex_placement"]),
         reconstruction=dict(meta.get("reconstruction") or {}),
         extras=dict(meta.get("extras") or {}),
+        model_vertices_mm=None if model_vertices is None else np.array(model_vertices, dtype=np.float64),
     )

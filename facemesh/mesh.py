@@ -31,9 +31,12 @@ from .pose import solve_head_pose, undistort_to_rays
 from .reconstruct import BallPivotingSettings, ball_pivoting
 from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose, InputError
 
-__all__ = ["VERTEX_PLACEMENTS", "BuildSettings", "place_vertices", "crop_texture", "build_face_mesh"]
+__all__ = ["VERTEX_PLACEMENTS", "TEXTURE_ALIGN", "BuildSettings", "place_vertices", "crop_texture", "build_face_mesh"]
 
 VERTEX_PLACEMENTS = ("canonical", "backprojected", "landmarks3d")
+
+#: The texture crop's origin is a multiple of this many pixels (2 ** 4: four pyramid levels line up).
+TEXTURE_ALIGN = 16
 
 
 @dataclass(frozen=True)
@@ -107,14 +110,19 @@ def crop_texture(
 ) -> tuple[NDArray[np.uint8], tuple[int, int]]:
     """Crop the image to the landmarks' bounding box plus a margin (clipped to the image).
 
+    The crop's top-left corner is rounded down to a multiple of
+    :data:`TEXTURE_ALIGN` pixels, so that the texture's image pyramid
+    (``cv2.pyrDown`` levels, used for anti-aliased sampling) samples the same
+    points as the pyramid of the whole image.
+
     Returns:
         ``(texture, (x0, y0))``: (h, w, 3) uint8 RGB and its top-left pixel in the image.
     """
     h, w = image_rgb.shape[:2]
     x0, y0, x1, y1 = landmarks.bbox_px
     pad = margin * max(x1 - x0, y1 - y0)
-    ix0 = max(0, int(math.floor(x0 - pad)))
-    iy0 = max(0, int(math.floor(y0 - pad)))
+    ix0 = max(0, int(math.floor(x0 - pad)) // TEXTURE_ALIGN * TEXTURE_ALIGN)
+    iy0 = max(0, int(math.floor(y0 - pad)) // TEXTURE_ALIGN * TEXTURE_ALIGN)
     ix1 = min(w, int(math.ceil(x1 + pad)) + 1)
     iy1 = min(h, int(math.ceil(y1 + pad)) + 1)
     if ix1 <= ix0 or iy1 <= iy0:
@@ -174,4 +182,5 @@ def build_face_mesh(
         vertex_placement=s.vertex_placement,
         reconstruction=reconstruction,
         extras=dict(extras or {}),
+        model_vertices_mm=model.vertices_mm,
     )

@@ -96,6 +96,42 @@ class RaycastScene:
             v = rotate_about(v, rotation, c)
         return cls(v, mesh.triangles, mesh.uv, mesh.texture)
 
+    @property
+    def texture(self) -> NDArray[np.uint8]:
+        """(h, w, 3) uint8 RGB, the texture this scene samples."""
+        return self._texture
+
+    def trace(self, origins_mm: ArrayLike, directions: ArrayLike) -> tuple[NDArray[np.bool_], NDArray[np.float32]]:
+        """Cast rays; give where each hits the texture.
+
+        Args:
+            origins_mm: (..., 3) float, mm, scene frame.
+            directions: (..., 3) float, any length, scene frame.
+
+        Returns:
+            ``(hit, texture_px)``: (...,) bool, whether the ray hit the mesh,
+            and (..., 2) float32 texture pixel coordinates (x, y; pixel centres
+            at integers) of the first hit, (0, 0) where nothing was hit.
+        """
+        o3d = import_open3d()
+        o = np.asarray(origins_mm, dtype=np.float32)
+        d = np.asarray(directions, dtype=np.float32)
+        shape = np.broadcast_shapes(o.shape, d.shape)
+        if shape[-1] != 3:
+            raise InputError(f"rays: expected (..., 3) origins and directions, got {o.shape} and {d.shape}")
+        rays = np.concatenate([np.broadcast_to(o, shape), np.broadcast_to(d, shape)], axis=-1).reshape(-1, 6)
+        ans = self._scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))
+        prim = ans["primitive_ids"].numpy()
+        bary = ans["primitive_uvs"].numpy()
+        hit = prim != self._scene.INVALID_ID
+        tri = self._triangles[np.where(hit, prim, 0)].astype(np.int64)
+        b1, b2 = bary[:, 0:1], bary[:, 1:2]
+        uv = (1.0 - b1 - b2) * self._uv[tri[:, 0]] + b1 * self._uv[tri[:, 1]] + b2 * self._uv[tri[:, 2]]
+        th, tw = self._texture.shape[:2]
+        px = uv_to_pixels(uv, (tw, th)).astype(np.float32)
+        px[~hit] = 0.0
+        return hit.reshape(shape[:-1]), px.reshape(shape[:-1] + (2,))
+
     def render(
         self,
         camera_matrix: ArrayLike,
@@ -117,7 +153,6 @@ class RaycastScene:
             supersample: rays per pixel side (1 = one ray through the pixel centre).
             background: RGB of pixels no ray hits.
         """
-        o3d = import_open3d()
         w, h = size_wh
         s = int(supersample)
         if s < 1:
@@ -131,23 +166,8 @@ class RaycastScene:
         ys = (np.arange(h)[:, None] + offs[None, :]).ravel()
         gx, gy = np.meshgrid(xs, ys)
         pix = np.stack([gx, gy, np.ones_like(gx)], axis=-1)
-        dirs_cam = pix @ np.linalg.inv(k).T
-        dirs = dirs_cam @ rot  # camera axes -> scene frame (rows of rot are the axes)
-        rays = np.concatenate([np.broadcast_to(pos, dirs.shape), dirs], axis=-1).astype(np.float32)
-        ans = self._scene.cast_rays(o3d.core.Tensor(rays))
-        prim = ans["primitive_ids"].numpy()
-        bary = ans["primitive_uvs"].numpy().astype(np.float64)
-        hit = prim != self._scene.INVALID_ID
-        tri = self._triangles[np.where(hit, prim, 0)].astype(np.int64)
-        b1, b2 = bary[..., 0], bary[..., 1]
-        b0 = 1.0 - b1 - b2
-        uv = (
-            b0[..., None] * self._uv[tri[..., 0]]
-            + b1[..., None] * self._uv[tri[..., 1]]
-            + b2[..., None] * self._uv[tri[..., 2]]
-        )
-        th, tw = self._texture.shape[:2]
-        px = uv_to_pixels(uv, (tw, th)).astype(np.float32)
+        dirs = (pix @ np.linalg.inv(k).T) @ rot  # camera axes -> scene frame (rows of rot are the axes)
+        hit, px = self.trace(np.broadcast_to(pos, dirs.shape), dirs)
         import cv2  # noqa: PLC0415
 
         samples = cv2.remap(

@@ -228,6 +228,10 @@ class FaceMesh:
             otherwise how they were made, e.g. ``{"method": "ball_pivoting",
             "backend": "open3d", "radii_mm": [...]}``.
         extras: any further JSON-serialisable metadata (package version, source image name, ...).
+        model_vertices_mm: (N, 3) float64, millimetres, head frame: the face
+            model's points the pose was solved with (``None`` when unknown).
+            Consumers that need the model's reference points (eye centres for
+            gaze normalization) read them here, so they agree with the pose.
     """
 
     vertices_mm: NDArray[np.float64]
@@ -242,9 +246,14 @@ class FaceMesh:
     vertex_placement: str
     reconstruction: Mapping[str, Any] = field(default_factory=dict)
     extras: Mapping[str, Any] = field(default_factory=dict)
+    model_vertices_mm: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         v = _frozen_array(self.vertices_mm, "mesh vertices", (None, 3))
+        if self.model_vertices_mm is not None:
+            object.__setattr__(
+                self, "model_vertices_mm", _frozen_array(self.model_vertices_mm, "face model vertices", (None, 3))
+            )
         object.__setattr__(self, "vertices_mm", v)
         t = _frozen_array(self.triangles, "mesh triangles", (None, 3), np.int64)
         if t.size and (t.min() < 0 or t.max() >= len(v)):

@@ -31,6 +31,7 @@ frame's origin is the midpoint of the two eye centres (see :data:`EYE_CORNERS`).
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -44,6 +45,9 @@ from ..types import FaceModel, InputError
 __all__ = [
     "BUILTIN_MODELS",
     "EYE_CORNERS",
+    "FaceKeypoints",
+    "KEYPOINTS",
+    "keypoints_for",
     "builtin_face_model",
     "load_face_model",
     "resolve_face_model",
@@ -59,6 +63,58 @@ BUILTIN_MODELS = ("mediapipe",)
 #: inner) = (33, 133), subject's left eye (inner, outer) = (362, 263). The
 #: subject's right eye appears on the image's left.
 EYE_CORNERS = {"right": (33, 133), "left": (362, 263)}
+
+
+@dataclass(frozen=True)
+class FaceKeypoints:
+    """Indices of the landmarks that define a face's reference points (gaze normalization uses them).
+
+    Attributes:
+        right_eye: (outer, inner) corner indices of the subject's right eye (on the image's left).
+        left_eye: (inner, outer) corner indices of the subject's left eye (on the image's right).
+        mouth: (right, left) mouth corner indices of the subject, or ``None``.
+    """
+
+    right_eye: tuple[int, int]
+    left_eye: tuple[int, int]
+    mouth: tuple[int, int] | None = None
+
+    def eye(self, side: str) -> tuple[int, int]:
+        """The corner indices of the subject's ``"left"`` or ``"right"`` eye."""
+        if side not in ("left", "right"):
+            raise InputError(f"eye side: expected 'left' or 'right', got {side!r}")
+        return self.left_eye if side == "left" else self.right_eye
+
+    @property
+    def face_indices(self) -> tuple[int, ...]:
+        """The points whose mean is the face centre: the four eye corners and, when known, the mouth corners."""
+        return self.right_eye + self.left_eye + (self.mouth or ())
+
+
+#: Key points of the landmark layouts the project knows, by name.
+KEYPOINTS = {
+    "mediapipe": FaceKeypoints(right_eye=(33, 133), left_eye=(362, 263), mouth=(61, 291)),
+    # MPIIFaceGaze / Zhang et al.: four eye corners (image left to right), then two mouth corners.
+    "mpii6": FaceKeypoints(right_eye=(0, 1), left_eye=(2, 3), mouth=(4, 5)),
+    # dlib / iBUG 68-point layout (0-based).
+    "dlib68": FaceKeypoints(right_eye=(36, 39), left_eye=(42, 45), mouth=(48, 54)),
+}
+
+
+def keypoints_for(num_points: int) -> FaceKeypoints:
+    """The key points of a landmark layout recognised by its point count (468/478, 6 or 68).
+
+    Raises:
+        InputError: the count matches no known layout.
+    """
+    names = {468: "mediapipe", 478: "mediapipe", 6: "mpii6", 68: "dlib68"}
+    if num_points not in names:
+        raise InputError(
+            f"no known landmark layout has {num_points} points (known: 468/478 MediaPipe, 6 MPII, 68 dlib); "
+            "pass the eye corner indices explicitly"
+        )
+    return KEYPOINTS[names[num_points]]
+
 
 #: First line of OBJ files written by :func:`export_obj`.
 OBJ_HEADER = "# facemesh face model frame=head units=mm"

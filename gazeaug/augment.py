@@ -1,0 +1,204 @@
+"""Augmenting one sample: the face mesh and its gaze turned to new head poses, each eye rendered as normalized.
+
+Steps (the paper's 4-7):
+
+1. the gaze label into the head frame: a target point ``T`` becomes
+   ``R_h^T (T - t_h)`` (a direction ``g`` becomes ``R_h^T g``);
+2. a head pose ``(yaw, pitch)`` from the application's distribution;
+3. the head placed at ``R_new = R(yaw, pitch)`` (the paper's equation) with its
+   eye midpoint on the application camera's optical axis, ``t_new = (0, 0, D)``
+   (``D`` defaults to the source photo's distance, so the texture keeps its
+   resolution); mesh and gaze move with it;
+4. each eye rendered through the normalized camera that test-time
+   normalization would build for that eye at this pose
+   (:func:`gazeaug.normalize.eye_cameras`), with the labels expressed in its
+   frame exactly as :func:`gazeaug.normalize.normalize_image` expresses them.
+
+At the source pose (``R_new = R_h``, ``t_new = t_h``) the render reproduces the
+normalization of the photo itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from facemesh.conventions import rotation_from_yaw_pitch
+from facemesh.face_models import FaceKeypoints, builtin_face_model, keypoints_for
+from facemesh.types import FaceMesh
+
+from .errors import GazeAugError
+from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample, eye_cameras, gaze_direction
+from .render.base import RenderMesh, Scene, View, render_mesh
+
+__all__ = ["FaceAsset", "face_asset", "HeadPlacement", "sampled_placement", "source_placement", "render_poses"]
+
+
+@dataclass(frozen=True)
+class FaceAsset:
+    """A face prepared for augmentation.
+
+    Attributes:
+        mesh: the textured face mesh (source camera frame).
+        model_vertices_mm: (N, 3) float64, mm, head frame: the face model the pose was solved with.
+        keypoints: the eye (and mouth) corner indices into the model.
+        render_mesh: the mesh with its background rings, as renderers take it.
+    """
+
+    mesh: FaceMesh
+    model_vertices_mm: NDArray[np.float64]
+    keypoints: FaceKeypoints
+    render_mesh: RenderMesh
+
+
+def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAsset:
+    """Prepare a mesh: find its face model's points and eye corners, add the background rings.
+
+    The model points come from ``mesh.model_vertices_mm`` or, for meshes written
+    before that was recorded, from the built-in model of the same name.
+
+    Raises:
+        GazeAugError: the face model is unknown, or the layout has no known eye corners.
+    """
+    model = mesh.model_vertices_mm
+    if model is None:
+        if mesh.face_model_name != "mediapipe":
+            raise GazeAugError(
+                f"the mesh does not record its face model's points and {mesh.face_model_name!r} is not built in; "
+                "rebuild it with this version of facemesh"
+            )
+        model = builtin_face_model().vertices_mm
+    model = np.asarray(model, dtype=np.float64)
+    try:
+        kp = keypoints or keypoints_for(len(model))
+    except Exception as exc:
+        raise GazeAugError(f"mesh without known eye landmarks: {exc}") from exc
+    if max(kp.face_indices) >= len(model):
+        raise GazeAugError(f"eye corner indices {kp.face_indices} do not fit a {len(model)}-point face model")
+    return FaceAsset(mesh=mesh, model_vertices_mm=model, keypoints=kp, render_mesh=render_mesh(mesh))
+
+
+@dataclass(frozen=True)
+class HeadPlacement:
+    """Where the head is in the application camera's frame.
+
+    Attributes:
+        rotation: (3, 3) float64, head frame -> application camera frame.
+        translation_mm: (3,) float64, mm: the head frame's origin (between the eyes).
+        yaw_pitch_rad: (2,) the sampled (yaw, pitch) of ``R(y, p)``, or None for the source pose.
+    """
+
+    rotation: NDArray[np.float64]
+    translation_mm: NDArray[np.float64]
+    yaw_pitch_rad: NDArray[np.float64] | None = None
+
+
+def sampled_placement(
+    asset: FaceAsset, yaw_rad: float, pitch_rad: float, distance_mm: float | None = None
+) -> HeadPlacement:
+    """The head at ``R(yaw, pitch)``, its eye midpoint ``distance_mm`` in front of the camera on the optical axis."""
+    d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
+    if not (np.isfinite(d) and d > 0):
+        raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
+    if not (np.isfinite(yaw_rad) and np.isfinite(pitch_rad)):
+        raise GazeAugError(f"head pose: expected finite yaw and pitch, got {yaw_rad}, {pitch_rad}")
+    return HeadPlacement(
+        rotation=rotation_from_yaw_pitch(yaw_rad, pitch_rad),
+        translation_mm=np.array([0.0, 0.0, d]),
+        yaw_pitch_rad=np.array([yaw_rad, pitch_rad]),
+    )
+
+
+def source_placement(asset: FaceAsset) -> HeadPlacement:
+    """The head where the photo shows it (the ``--original-pose`` of ``gazeaug render``)."""
+    return HeadPlacement(
+        rotation=np.array(asset.mesh.pose.rotation), translation_mm=np.array(asset.mesh.pose.translation_mm)
+    )
+
+
+def _views(asset: FaceAsset, place: HeadPlacement, settings: NormalizationSettings) -> dict[str, View]:
+    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    a = place.rotation @ r_h.T
+    b = place.translation_mm - a @ t_h
+    cams = eye_cameras(place.rotation, place.translation_mm, asset.model_vertices_mm, asset.keypoints, settings)
+    return {side: View(camera=cams[side], rotation=a, translation_mm=b) for side in EYES}
+
+
+def render_poses(
+    scene: Scene,
+    asset: FaceAsset,
+    placements: Sequence[HeadPlacement],
+    *,
+    gaze_target_mm: ArrayLike | None = None,
+    gaze_vector: ArrayLike | None = None,
+    settings: NormalizationSettings | None = None,
+    renderer_name: str = "raycast",
+    meta: Mapping[str, Any] | None = None,
+) -> list[NormalizedSample]:
+    """Render both eyes of a face at each head placement, with labels.
+
+    Args:
+        scene: the face loaded into a renderer (``renderer.scene(asset.render_mesh)``).
+        asset: the face.
+        placements: head poses in the application camera's frame.
+        gaze_target_mm: (3,) float, mm, *source* camera frame: what the subject looked at.
+        gaze_vector: (3,) float, source camera frame: the gaze direction (instead of a target).
+        settings: normalization settings (must match the ones test-time normalization uses).
+        renderer_name: recorded in each sample's ``source``.
+        meta: extras recorded in every sample.
+
+    Returns:
+        One :class:`NormalizedSample` per placement; ``meta`` holds the sampled
+        ``yaw_pitch_deg`` when the placement was sampled.
+    """
+    s = settings or NormalizationSettings()
+    if not placements:
+        return []
+    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    # the gaze label in the head frame
+    target_head = None
+    vector_head = None
+    if gaze_target_mm is not None:
+        target_head = r_h.T @ (np.asarray(gaze_target_mm, dtype=np.float64) - t_h)
+    if gaze_vector is not None:
+        vector_head = r_h.T @ np.asarray(gaze_vector, dtype=np.float64)
+    views: list[View] = []
+    per_place: list[dict[str, View]] = []
+    for place in placements:
+        v = _views(asset, place, s)
+        per_place.append(v)
+        views.extend(v[side] for side in EYES)
+    out = scene.render(views)
+    samples = []
+    for i, (place, v) in enumerate(zip(placements, per_place)):
+        target = None if target_head is None else place.rotation @ target_head + place.translation_mm
+        vector = None if vector_head is None else place.rotation @ vector_head
+        eyes = {}
+        for j, side in enumerate(EYES):
+            cam = v[side].camera
+            g = gaze_direction(cam.reference_mm, target, vector)
+            eyes[side] = EyePatch(
+                image=out.images[2 * i + j],
+                camera=cam,
+                head_pose=cam.head_pose_pitchyaw(place.rotation),
+                gaze=None if g is None else cam.gaze_pitchyaw(g),
+                coverage=float(out.coverage[2 * i + j]),
+            )
+        m = dict(meta or {})
+        if place.yaw_pitch_rad is not None:
+            m["yaw_pitch_deg"] = np.degrees(place.yaw_pitch_rad).tolist()
+        samples.append(
+            NormalizedSample(
+                left=eyes["left"],
+                right=eyes["right"],
+                settings=s,
+                head_rotation=np.array(place.rotation),
+                source=f"render:{renderer_name}",
+                meta=m,
+            )
+        )
+    return samples

@@ -1,0 +1,162 @@
+"""The normalized camera of Zhang et al. 2018, shared by test-time normalization and training-time rendering.
+
+For a reference point ``e`` (an eye centre or the face centre, camera frame,
+mm) and the head rotation ``R_head`` (head frame -> camera frame), the
+normalized camera's axes, as rows of ``R``, are::
+
+    z = e / ||e||                    forward: from the camera centre to the reference point
+    y = normalize(z x R_head[:, 0])  down: perpendicular to the forward axis and the head's x axis
+    x = normalize(y x z)             right: the head's x axis made perpendicular to z
+
+and the image warp is ``W = C_n S R C_r^-1`` with ``S = diag(1, 1, d_n / ||e||)``
+and ``C_n = [[f_n, 0, w / 2], [0, f_n, h / 2], [0, 0, 1]]`` (the principal point
+Zhang's code uses). ``W`` turns the real camera about its centre by ``R`` and
+zooms it by ``d_n / ||e||``: the patch shows the reference point as a camera
+``d_n`` away would. A direction ``v`` (gaze, head axes) is normalized by ``R``
+alone (the "modified" normalization, which does not scale the gaze).
+
+Because rendering uses this same object, an augmented patch at a pose and a
+real image normalized at that pose agree pixel for pixel and label for label.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from facemesh.conventions import rotation_to_head_pitchyaw, vector_to_pitchyaw
+
+from .errors import GazeAugError
+
+__all__ = ["NormalizedCamera", "normalized_camera"]
+
+
+@dataclass(frozen=True)
+class NormalizedCamera:
+    """Zhang's normalized camera for one reference point.
+
+    Attributes:
+        rotation: (3, 3) float64; rows are the normalized camera's x, y, z axes
+            in the real camera's frame (``R`` of the module docstring).
+        reference_mm: (3,) float64, mm, real camera frame: the point the camera looks at.
+        distance_mm: d_n, the normalized distance to the reference point.
+        focal_px: f_n, the normalized focal length in pixels.
+        size_wh: (width, height) of the normalized image in pixels.
+    """
+
+    rotation: NDArray[np.float64]
+    reference_mm: NDArray[np.float64]
+    distance_mm: float
+    focal_px: float
+    size_wh: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        r = np.array(self.rotation, dtype=np.float64)
+        e = np.array(self.reference_mm, dtype=np.float64)
+        if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-9):
+            raise GazeAugError(f"normalized camera rotation: expected a (3, 3) rotation, got {r.shape}")
+        if e.shape != (3,) or not np.all(np.isfinite(e)):
+            raise GazeAugError(f"normalized camera reference point: expected finite (3,), got {e}")
+        r.setflags(write=False)
+        e.setflags(write=False)
+        object.__setattr__(self, "rotation", r)
+        object.__setattr__(self, "reference_mm", e)
+
+    @property
+    def camera_matrix(self) -> NDArray[np.float64]:
+        """(3, 3) float64 ``C_n``: focal f_n, principal point (w / 2, h / 2)."""
+        w, h = self.size_wh
+        return np.array([[self.focal_px, 0.0, w / 2.0], [0.0, self.focal_px, h / 2.0], [0.0, 0.0, 1.0]])
+
+    @property
+    def scale(self) -> float:
+        """``d_n / ||e||``, the zoom ``S`` applies."""
+        return float(self.distance_mm / np.linalg.norm(self.reference_mm))
+
+    def warp_matrix(self, real_camera_matrix: ArrayLike) -> NDArray[np.float64]:
+        """(3, 3) float64 homography ``W = C_n S R C_r^-1`` from real image pixels to normalized pixels."""
+        s = np.diag([1.0, 1.0, self.scale])
+        return self.camera_matrix @ s @ self.rotation @ np.linalg.inv(np.asarray(real_camera_matrix, dtype=np.float64))
+
+    def ray_directions(self) -> NDArray[np.float64]:
+        """(H, W, 3) float64: for each normalized pixel centre, its ray in the real camera frame.
+
+        ``R^T S^-1 C_n^-1 (u, v, 1)``; the rays start at the real camera's
+        centre. Scaled so that the third component of ``S^-1 C_n^-1 (u, v, 1)`` is 1.
+        """
+        w, h = self.size_wh
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+        s_inv = np.diag([1.0, 1.0, 1.0 / self.scale])
+        return pix @ (self.rotation.T @ s_inv @ np.linalg.inv(self.camera_matrix)).T
+
+    def normalize_vector(self, vector: ArrayLike) -> NDArray[np.float64]:
+        """(3,) direction in the real camera frame -> (3,) unit direction in the normalized frame (``R v``)."""
+        v = np.asarray(vector, dtype=np.float64)
+        n = np.linalg.norm(v)
+        if v.shape != (3,) or not np.isfinite(n) or n == 0:
+            raise GazeAugError(f"direction: expected a finite non-zero (3,) vector, got {v}")
+        return self.rotation @ (v / n)
+
+    def denormalize_vector(self, vector: ArrayLike) -> NDArray[np.float64]:
+        """(3,) direction in the normalized frame -> (3,) unit direction in the real camera frame (``R^T v``)."""
+        v = np.asarray(vector, dtype=np.float64)
+        return self.rotation.T @ (v / np.linalg.norm(v))
+
+    def head_pose_pitchyaw(self, head_rotation: ArrayLike) -> NDArray[np.float64]:
+        """(2,) float64 radians: the head pose (pitch, yaw) in the normalized frame, from ``R @ R_head``."""
+        return rotation_to_head_pitchyaw(self.rotation @ np.asarray(head_rotation, dtype=np.float64))
+
+    def gaze_pitchyaw(self, gaze_vector: ArrayLike) -> NDArray[np.float64]:
+        """(2,) float64 radians: a real-camera-frame gaze direction as (pitch, yaw) in the normalized frame."""
+        return vector_to_pitchyaw(self.normalize_vector(gaze_vector))
+
+
+def normalized_camera(
+    reference_mm: ArrayLike,
+    head_rotation: ArrayLike,
+    *,
+    distance_mm: float,
+    focal_px: float,
+    size_wh: tuple[int, int],
+) -> NormalizedCamera:
+    """Build the normalized camera looking at ``reference_mm`` (see the module docstring).
+
+    Args:
+        reference_mm: (3,) float, mm, real camera frame: eye or face centre.
+        head_rotation: (3, 3) float, head frame -> real camera frame.
+        distance_mm: d_n.
+        focal_px: f_n.
+        size_wh: (width, height) of the normalized image.
+
+    Raises:
+        GazeAugError: the point is at or behind the camera centre, or the head's
+            x axis is parallel to the line of sight.
+    """
+    e = np.asarray(reference_mm, dtype=np.float64)
+    if e.shape != (3,) or not np.all(np.isfinite(e)):
+        raise GazeAugError(f"reference point: expected finite (3,) mm, got {e}")
+    if e[2] <= 0:
+        raise GazeAugError(f"reference point {np.round(e, 1).tolist()} mm is behind the camera (z <= 0)")
+    if not (np.isfinite(distance_mm) and distance_mm > 0 and np.isfinite(focal_px) and focal_px > 0):
+        raise GazeAugError(f"normalized distance and focal must be > 0, got {distance_mm} mm and {focal_px} px")
+    w, h = (int(v) for v in size_wh)
+    if w <= 0 or h <= 0:
+        raise GazeAugError(f"normalized image size: expected positive (width, height), got {size_wh}")
+    hx = np.asarray(head_rotation, dtype=np.float64)[:, 0]
+    forward = e / np.linalg.norm(e)
+    down = np.cross(forward, hx)
+    if np.linalg.norm(down) < 1e-9:
+        raise GazeAugError("the head's x axis is parallel to the line of sight; the normalized camera is undefined")
+    down /= np.linalg.norm(down)
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right)
+    return NormalizedCamera(
+        rotation=np.stack([right, down, forward]),
+        reference_mm=e,
+        distance_mm=float(distance_mm),
+        focal_px=float(focal_px),
+        size_wh=(w, h),
+    )

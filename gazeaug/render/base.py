@@ -1,0 +1,204 @@
+"""What every renderer shares: the mesh it draws (with a background ring), the views, and the fill of misses.
+
+A renderer builds a :class:`Scene` once per face (``renderer.scene(mesh)``) and
+renders many :class:`View` s from it. A view is a normalized camera
+(:class:`gazeaug.camera.NormalizedCamera`, in the frame of the application's
+camera) plus the rigid motion that takes the mesh from its source camera's
+frame into the application camera's frame, so the scene never changes while
+the head pose does.
+
+Background: a face mesh ends at the face contour, so a turned head can leave
+pixels that no triangle covers. :func:`render_mesh` adds rings of triangles
+around the contour, pushed outward and backward in the head frame, textured
+with whatever the photo shows around the face (hair, ears, background); any
+pixel still uncovered is inpainted from its neighbours (:func:`fill_misses`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from facemesh.conventions import pixels_to_uv
+from facemesh.face_models.triangulation import boundary_loops
+from facemesh.pose import project_points
+from facemesh.types import FaceMesh
+
+from ..camera import NormalizedCamera
+from ..errors import GazeAugError
+
+__all__ = ["RenderMesh", "View", "RenderedPatches", "Scene", "Renderer", "render_mesh", "fill_misses", "view_rays"]
+
+#: Background rings around the face contour: (outward growth of the contour
+#: about its centre, in the head's x-y plane; how far back, mm). Reaches past
+#: the eye patches' edges for heads turned 40 deg.
+BACKGROUND_RINGS: tuple[tuple[float, float], ...] = ((0.15, 5.0), (0.5, 12.0), (1.2, 20.0))
+
+
+@dataclass(frozen=True)
+class RenderMesh:
+    """A face mesh ready to draw.
+
+    Attributes:
+        vertices_mm: (V, 3) float64, mm, the source camera's frame. The first
+            ``num_face_vertices`` are the face mesh's (landmark order); the rest
+            are the background rings.
+        triangles: (T, 3) int64, counter-clockwise seen from the source camera.
+        uv: (V, 2) float64 glTF texture coordinates into ``texture``.
+        texture: (h, w, 3) uint8 RGB.
+        num_face_vertices: N, the face mesh's own vertex count.
+        texels_per_mm: texture pixels per mm at the head's distance in the source
+            photo (``f / ||t_head||``): how much detail the texture holds.
+    """
+
+    vertices_mm: NDArray[np.float64]
+    triangles: NDArray[np.int64]
+    uv: NDArray[np.float64]
+    texture: NDArray[np.uint8]
+    num_face_vertices: int
+    texels_per_mm: float = 0.0
+
+
+@dataclass(frozen=True)
+class View:
+    """One normalized camera looking at the mesh in a new pose.
+
+    Attributes:
+        camera: the normalized camera, in the application camera's frame.
+        rotation: (3, 3) float64 ``A``, and
+        translation_mm: (3,) float64 ``b``: a mesh point ``v`` (source camera
+            frame) sits at ``A v + b`` in the application camera's frame.
+    """
+
+    camera: NormalizedCamera
+    rotation: NDArray[np.float64]
+    translation_mm: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RenderedPatches:
+    """What a scene gives for a list of views.
+
+    Attributes:
+        images: (P, H, W, 3) uint8 RGB, one per view.
+        coverage: (P,) float64, the fraction of each image's pixels covered by the mesh before filling.
+    """
+
+    images: NDArray[np.uint8]
+    coverage: NDArray[np.float64]
+
+
+class Scene(Protocol):
+    """A face loaded into a renderer."""
+
+    def render(self, views: Sequence[View]) -> RenderedPatches:
+        """Render each view (all views share one patch size)."""
+        ...
+
+
+class Renderer(Protocol):
+    """Builds scenes. ``name`` is recorded in outputs."""
+
+    name: str
+
+    def scene(self, mesh: RenderMesh) -> Scene:
+        """Load one face."""
+        ...
+
+
+def view_rays(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rays of every pixel of every view, in the mesh's (source camera) frame.
+
+    Returns:
+        ``(origins, directions)``: (P, 1, 1, 3) and (P, H, W, 3) float64.
+    """
+    if not views:
+        raise GazeAugError("no views to render")
+    sizes = {v.camera.size_wh for v in views}
+    if len(sizes) != 1:
+        raise GazeAugError(f"views to render together must share one patch size, got {sorted(sizes)}")
+    a = np.stack([v.rotation for v in views])
+    b = np.stack([v.translation_mm for v in views])
+    dirs_app = np.stack([v.camera.ray_directions() for v in views])  # (P, H, W, 3) application frame
+    dirs = np.einsum("phwi,pij->phwj", dirs_app, a)  # A^T d as rows
+    origins = -np.einsum("pij,pi->pj", a, b)  # A^T (0 - b)
+    return origins[:, None, None, :], dirs
+
+
+def fill_misses(images: NDArray[np.float32], hit: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """Round to uint8 and inpaint pixels no ray hit (Telea), per image; images without misses pass through.
+
+    Args:
+        images: (P, H, W, 3) float RGB.
+        hit: (P, H, W) bool.
+    """
+    import cv2
+
+    out = np.clip(np.round(images), 0, 255).astype(np.uint8)
+    for i in np.flatnonzero(~hit.reshape(len(hit), -1).all(axis=1)):
+        if not hit[i].any():
+            out[i] = 0
+            continue
+        mask = (~hit[i]).astype(np.uint8)
+        out[i] = cv2.inpaint(out[i], mask, 3, cv2.INPAINT_TELEA)
+    return out
+
+
+def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUND_RINGS) -> RenderMesh:
+    """The face mesh plus background rings around its outer contour (see the module docstring).
+
+    Meshes whose boundary is not a set of simple loops (some Ball-Pivoting
+    results) get no rings; their misses are inpainted.
+    """
+    v = np.asarray(mesh.vertices_mm, dtype=np.float64)
+    tri = np.asarray(mesh.triangles, dtype=np.int64)
+    uv = np.asarray(mesh.uv, dtype=np.float64)
+    n = len(v)
+    try:
+        loops = boundary_loops(tri)
+    except ValueError:
+        loops = []
+    texels = float(np.mean(mesh.camera.focal_px) / np.linalg.norm(mesh.pose.translation_mm))
+    if not loops or not rings:
+        return RenderMesh(v, tri, uv, np.asarray(mesh.texture), n, texels)
+    # the outer contour: the loop with the largest extent
+    outer = max(loops, key=lambda lp: float(np.ptp(v[lp], axis=0).sum()))
+    r, t = mesh.pose.rotation, mesh.pose.translation_mm
+    head = (v[outer] - t) @ r  # head frame
+    centre = head[:, :2].mean(axis=0)
+    new_vertices = []
+    for grow, back in rings:
+        ring = head.copy()
+        ring[:, :2] = centre + (head[:, :2] - centre) * (1.0 + grow)
+        ring[:, 2] += back
+        new_vertices.append(ring @ r.T + t)
+    ring_v = np.concatenate(new_vertices)
+    # texture: where the ring points project in the source image
+    px = project_points(ring_v, mesh.camera)
+    th, tw = mesh.texture.shape[:2]
+    ring_uv = pixels_to_uv(px, mesh.texture_origin_px, (tw, th))
+    # quads between consecutive rings
+    m = len(outer)
+    prev = np.asarray(outer, dtype=np.int64)
+    new_tri = []
+    for k in range(len(rings)):
+        cur = n + k * m + np.arange(m)
+        a, b = prev, np.roll(prev, -1)
+        c, d = np.roll(cur, -1), cur
+        new_tri.append(np.stack([a, b, c], axis=1))
+        new_tri.append(np.stack([a, c, d], axis=1))
+        prev = cur
+    extra = np.concatenate(new_tri)
+    all_v = np.concatenate([v, ring_v])
+    # orient the new triangles like the face (normals toward the source camera)
+    e1 = all_v[extra[:, 1]] - all_v[extra[:, 0]]
+    e2 = all_v[extra[:, 2]] - all_v[extra[:, 0]]
+    facing = np.einsum("ij,ij->i", np.cross(e1, e2), all_v[extra[:, 0]])
+    extra[facing > 0] = extra[facing > 0][:, [0, 2, 1]]
+    return RenderMesh(
+        all_v, np.concatenate([tri, extra]), np.concatenate([uv, ring_uv]), np.asarray(mesh.texture), n, texels
+    )

@@ -1,0 +1,147 @@
+"""Anti-aliased texture sampling: a Gaussian image pyramid and per-pixel trilinear (mip-mapped) lookups.
+
+Both test-time normalization and training-time rendering turn each output
+pixel into a source position (image pixels for normalization, texture pixels
+for rendering) and sample it here, so that the two give the same patch for the
+same geometry. Without filtering, a 60 x 36 eye patch taken from a photo where
+the eye spans several times more pixels aliases; here each pixel reads the
+pyramid level whose texel spacing matches the pixel's footprint, as a GPU's
+trilinear filter does.
+
+Level ``l`` is ``cv2.pyrDown`` applied ``l`` times; its pixel ``j`` is centred
+on level-0 position ``2**l * j``. The footprint of an output pixel is the
+larger of the lengths of the source position's steps to the neighbouring
+output pixels (the GPU rule); ``lod = log2(footprint)``, clipped to the levels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import GazeAugError
+
+__all__ = ["MAX_LEVELS", "MipPyramid", "build_pyramid", "level_of_detail", "sample"]
+
+#: Pyramid levels beyond the original (footprints up to 16 source pixels per output pixel).
+MAX_LEVELS = 4
+
+# cv2.remap takes maps of at most SHRT_MAX rows.
+_MAX_REMAP_ROWS = 32000
+
+
+@dataclass(frozen=True)
+class MipPyramid:
+    """An image and its ``cv2.pyrDown`` levels.
+
+    Attributes:
+        levels: level 0 is the (h, w, 3) uint8 RGB image; level l is about (h / 2**l, w / 2**l, 3).
+    """
+
+    levels: tuple[NDArray[np.uint8], ...]
+
+
+def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) -> MipPyramid:
+    """Gaussian pyramid of an RGB image (stops before a level would be smaller than 4 pixels)."""
+    import cv2
+
+    img = np.ascontiguousarray(image_rgb)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise GazeAugError(f"texture: expected (H, W, 3) uint8, got {img.shape} {img.dtype}")
+    levels = [img]
+    while len(levels) <= max_levels and min(levels[-1].shape[:2]) >= 8:
+        levels.append(cv2.pyrDown(levels[-1]))
+    return MipPyramid(levels=tuple(levels))
+
+
+def _step_lengths(coords: NDArray[np.float32], valid: NDArray[np.bool_], axis: int) -> NDArray[np.float64]:
+    """Mean length of the source steps to the valid neighbours along ``axis`` (NaN where there is none)."""
+    d = np.diff(coords, axis=axis)
+    n_ax = valid.shape[axis]
+    ok = np.take(valid, np.arange(1, n_ax), axis=axis) & np.take(valid, np.arange(0, n_ax - 1), axis=axis)
+    length = np.where(ok, np.sqrt((d.astype(np.float64) ** 2).sum(-1)), 0.0)
+    pad = [(0, 0)] * length.ndim
+    pad[axis] = (1, 0)
+    before_l, before_n = np.pad(length, pad), np.pad(ok, pad)
+    pad[axis] = (0, 1)
+    after_l, after_n = np.pad(length, pad), np.pad(ok, pad)
+    n = before_n.astype(np.float64) + after_n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (before_l + after_l) / n, np.nan)
+
+
+def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Per-pixel pyramid level from the source positions of neighbouring pixels.
+
+    Args:
+        coords_px: (P, H, W, 2) float, source pixel positions (x, y) of P output images.
+        valid: (P, H, W) bool, where the position is defined (rays that hit the mesh).
+
+    Returns:
+        (P, H, W) float64 ``log2`` of the footprint, >= 0. Pixels without a valid
+        neighbour take their image's median.
+    """
+    lx = _step_lengths(coords_px, valid, axis=2)
+    ly = _step_lengths(coords_px, valid, axis=1)
+    foot = np.fmax(lx, ly)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lod = np.log2(np.maximum(foot, 1.0))
+    bad = ~np.isfinite(lod)
+    if bad.any():
+        flat = lod.reshape(len(lod), -1)
+        med = np.nanmedian(np.where(np.isfinite(flat), flat, np.nan), axis=1) if np.isfinite(flat).any() else None
+        fill = np.zeros(len(lod)) if med is None else np.nan_to_num(med, nan=0.0)
+        lod = np.where(bad, fill[:, None, None], lod)
+    return lod
+
+
+def _remap(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.float32]) -> NDArray[np.float32]:
+    import cv2
+
+    rows = mx.shape[0]
+    out = np.empty(mx.shape + (3,), dtype=np.float32)
+    for a in range(0, rows, _MAX_REMAP_ROWS):
+        b = min(rows, a + _MAX_REMAP_ROWS)
+        out[a:b] = cv2.remap(
+            image, mx[a:b], my[a:b], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        ).astype(np.float32)
+    return out
+
+
+def sample(
+    pyramid: MipPyramid,
+    coords_px: NDArray[np.float32],
+    valid: NDArray[np.bool_],
+    *,
+    antialias: bool = True,
+) -> NDArray[np.float32]:
+    """Sample the pyramid at source positions: bilinear within a level, linear between levels.
+
+    Args:
+        pyramid: the source image's pyramid.
+        coords_px: (P, H, W, 2) float32 level-0 pixel positions (x, y; pixel centres at integers).
+        valid: (P, H, W) bool; invalid pixels come out 0.
+        antialias: False samples level 0 only (plain bilinear, like ``cv2.warpPerspective``).
+
+    Returns:
+        (P, H, W, 3) float32 RGB in [0, 255].
+    """
+    p, h, w = valid.shape
+    mx = np.ascontiguousarray(coords_px[..., 0].reshape(p * h, w), dtype=np.float32)
+    my = np.ascontiguousarray(coords_px[..., 1].reshape(p * h, w), dtype=np.float32)
+    if not antialias or len(pyramid.levels) == 1:
+        out = _remap(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
+    else:
+        lod = np.minimum(level_of_detail(coords_px, valid), len(pyramid.levels) - 1).reshape(p * h, w)
+        out_flat = np.zeros((p * h, w, 3), dtype=np.float32)
+        for level, image in enumerate(pyramid.levels):
+            weight = np.clip(1.0 - np.abs(lod - level), 0.0, 1.0).astype(np.float32)
+            if not weight.any():
+                continue
+            f = np.float32(2.0**-level)
+            out_flat += weight[..., None] * _remap(image, mx * f, my * f)
+        out = out_flat.reshape(p, h, w, 3)
+    out[~valid] = 0.0
+    return out
