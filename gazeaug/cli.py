@@ -1,12 +1,63 @@
-"""``gazeaug`` command line (a thin layer over the library)."""
+"""``gazeaug`` command line: a thin layer over the library.
+
+Exit codes: 0 success; 2 bad input (missing or unreadable file, no face, bad
+option values); 1 anything unexpected. Outputs are written atomically: on
+failure nothing is left behind.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
+import warnings
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 __all__ = ["main", "build_parser"]
+
+
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat")
+    p.add_argument(
+        "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
+    )
+    p.add_argument("--face-model", default=None, help="'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy)")
+    p.add_argument("--face-index", type=int, default=None, help="which face, largest first (default: the largest)")
+
+
+def _add_normalization_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--distance", type=float, default=600.0, help="normalized distance d_n in mm (default 600)")
+    p.add_argument("--focal", type=float, default=650.0, help="normalized focal length f_n in px (default 650)")
+    p.add_argument(
+        "--patch-size", type=int, nargs=2, default=(60, 36), metavar=("W", "H"), help="eye patch size (default 60 36)"
+    )
+    p.add_argument("--no-antialias", action="store_true", help="plain bilinear sampling (as cv2.warpPerspective)")
+
+
+def _add_gaze_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--gaze-target",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="3D point looked at, mm, camera frame of the image (OpenCV: x right, y down, z forward)",
+    )
+
+
+def _add_distribution_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
+    g.add_argument("--yaw-mean", type=float, default=0.0, help="degrees (default 0)")
+    g.add_argument("--pitch-mean", type=float, default=30.0, help="degrees; + = camera below the face (default 30)")
+    g.add_argument("--yaw-var", type=float, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--pitch-var", type=float, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--yaw-std", type=float, default=None, help="standard deviation, deg (instead of --yaw-var)")
+    g.add_argument("--pitch-std", type=float, default=None, help="standard deviation, deg (instead of --pitch-var)")
+    g.add_argument("--rig", default=None, help="'wheelchair', 'screen' or a RIG.yaml (instead of the above)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,22 +66,248 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(
         prog="gazeaug",
-        description="Semi-synthetic gaze dataset augmentation. Face meshes: see the 'facemesh' command.",
+        description="Semi-synthetic gaze dataset augmentation (face meshes: see the 'facemesh' command).",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    parser.add_subparsers(dest="command", title="commands")
+    sub = parser.add_subparsers(dest="command", title="commands", required=True)
+
+    n = sub.add_parser("normalize", help="normalize the eyes of a face image (Zhang et al. 2018) into an .npz")
+    n.add_argument("image", nargs="?", type=Path, help="face image (default: the built-in sample)")
+    n.add_argument("-o", "--output", type=Path, required=True, help="output .npz")
+    _add_input_options(n)
+    _add_gaze_options(n)
+    _add_normalization_options(n)
+
+    r = sub.add_parser("render", help="render both eyes of a face (image or .glb) at a new head pose into an .npz")
+    r.add_argument("input", nargs="?", type=Path, help="face image or facemesh .glb (default: the built-in sample)")
+    r.add_argument("-o", "--output", type=Path, required=True, help="output .npz")
+    r.add_argument("--yaw", type=float, default=None, help="head yaw, degrees (with --pitch)")
+    r.add_argument("--pitch", type=float, default=None, help="head pitch, degrees (with --yaw)")
+    r.add_argument("--original-pose", action="store_true", help="keep the detected head pose")
+    r.add_argument("--seed", type=int, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
+    r.add_argument("--distance-to-camera", type=float, default=None, help="head distance in mm (default: the photo's)")
+    r.add_argument("--renderer", choices=("raycast", "filament"), default="raycast", help="default raycast")
+    _add_input_options(r)
+    _add_gaze_options(r)
+    _add_normalization_options(r)
+    _add_distribution_options(r)
+
+    pv = sub.add_parser("preview", help="contact sheet of augmented eye patches and a plot of their distributions")
+    pv.add_argument("input", nargs="?", type=Path, help="face image or .glb (default: the built-in sample)")
+    pv.add_argument("-o", "--output", type=Path, required=True, help="contact sheet .png (the plot goes beside it)")
+    pv.add_argument("-n", type=int, default=16, help="number of augmented samples (default 16)")
+    pv.add_argument("--seed", type=int, default=0)
+    pv.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
+    _add_input_options(pv)
+    _add_gaze_options(pv)
+    _add_normalization_options(pv)
+    _add_distribution_options(pv)
+
+    b = sub.add_parser("bench", help="benchmarks that print one JSON line")
+    bsub = b.add_subparsers(dest="bench", required=True)
+    br = bsub.add_parser("render", help="eye patches per second")
+    br.add_argument("--renderer", choices=("raycast", "filament", "pyrender"), default="raycast")
+    br.add_argument("--n", type=int, default=2000, help="samples (two patches each; default 2000)")
+    br.add_argument("--per-face", type=int, default=16, help="samples per face before a new face (default 16)")
+    br.add_argument("--faces", type=Path, nargs="*", default=None, help="face images (default: the built-in sample)")
+    br.add_argument("--seed", type=int, default=0)
     return parser
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    from .normalize import NormalizationSettings
+
+    return NormalizationSettings(
+        distance_mm=args.distance,
+        focal_px=args.focal,
+        patch_size_wh=tuple(args.patch_size),
+        antialias=not args.no_antialias,
+    )
+
+
+def _distribution(args: argparse.Namespace) -> Any:
+    from .errors import GazeAugError
+    from .sampling import HeadPoseDistribution, load_rig
+
+    if args.rig is not None:
+        return load_rig(args.rig).distribution()
+    for axis in ("yaw", "pitch"):
+        if getattr(args, f"{axis}_var") is not None and getattr(args, f"{axis}_std") is not None:
+            raise GazeAugError(f"give --{axis}-var or --{axis}-std, not both")
+    var = []
+    for axis in ("yaw", "pitch"):
+        v, s = getattr(args, f"{axis}_var"), getattr(args, f"{axis}_std")
+        if s is not None:
+            if not (math.isfinite(s) and s >= 0):
+                raise GazeAugError(f"--{axis}-std must be finite and >= 0, got {s}")
+            v = s * s
+        var.append(10.0 if v is None else v)
+    return HeadPoseDistribution.from_variance(args.yaw_mean, args.pitch_mean, var[0], var[1])
+
+
+def _face_asset(args: argparse.Namespace, path: Path | None) -> tuple[Any, str]:
+    """The face to render (from a .glb or an image) and its name."""
+    from .augment import face_asset
+    from .pipeline import fit_face, landmark_model_for, load_input_image, load_mesh, mesh_for_fit
+
+    if path is not None and path.suffix.lower() in (".glb", ".gltf"):
+        return face_asset(load_mesh(path)), str(path)
+    face_model = None
+    if args.face_model is not None:
+        from facemesh.face_models import resolve_face_model
+
+        face_model = resolve_face_model(args.face_model)
+    image, camera, source = load_input_image(path, args.camera)
+    detector = landmark_model_for(args.landmarks, args.face_model)
+    fit = fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
+    return face_asset(mesh_for_fit(fit)), source
+
+
+def _cmd_normalize(args: argparse.Namespace) -> int:
+    from .normalize import normalize_image, save_npz
+    from .pipeline import fit_face, landmark_model_for, load_input_image
+
+    settings = _settings(args)
+    face_model = None
+    if args.face_model is not None:
+        from facemesh.face_models import resolve_face_model
+
+        face_model = resolve_face_model(args.face_model)
+    image, camera, source = load_input_image(args.image, args.camera)
+    detector = landmark_model_for(args.landmarks, args.face_model)
+    fit = fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
+    sample = normalize_image(
+        image,
+        camera,
+        fit.pose,
+        fit.model.vertices_mm,
+        fit.keypoints,
+        gaze_target_mm=args.gaze_target,
+        settings=settings,
+        meta={"input": source, "camera": camera.source},
+    )
+    save_npz(args.output, sample)
+    _report(args.output, sample)
+    return 0
+
+
+def _report(path: Path, sample: Any) -> None:
+    out = {"output": str(path), "source": sample.source}
+    for side in ("left", "right"):
+        e = sample.eye(side)
+        out[f"head_pose_{side}_deg"] = np.round(np.degrees(e.head_pose), 3).tolist()
+        if e.gaze is not None:
+            out[f"gaze_{side}_deg"] = np.round(np.degrees(e.gaze), 3).tolist()
+    print(json.dumps(out))
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from .augment import render_poses, sampled_placement, source_placement
+    from .errors import GazeAugError
+    from .normalize import save_npz
+    from .render import create_renderer
+
+    settings = _settings(args)
+    if (args.yaw is None) != (args.pitch is None):
+        raise GazeAugError("give both --yaw and --pitch (or neither, to sample a pose)")
+    if args.original_pose and args.yaw is not None:
+        raise GazeAugError("--original-pose and --yaw/--pitch exclude each other")
+    dist = None if args.original_pose or args.yaw is not None else _distribution(args)
+    asset, source = _face_asset(args, args.input)
+    if args.original_pose:
+        place = source_placement(asset)
+    else:
+        if args.yaw is not None:
+            yaw, pitch = math.radians(args.yaw), math.radians(args.pitch)
+        else:
+            yaw, pitch = dist.sample(1, args.seed)[0]
+        place = sampled_placement(asset, yaw, pitch, args.distance_to_camera)
+    scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)
+    meta: dict[str, Any] = {"input": source, "seed": args.seed}
+    if dist is not None:
+        meta["distribution"] = dist.as_dict()
+    sample = render_poses(
+        scene,
+        asset,
+        [place],
+        gaze_target_mm=args.gaze_target,
+        settings=settings,
+        renderer_name=args.renderer,
+        meta=meta,
+    )[0]
+    save_npz(args.output, sample)
+    _report(args.output, sample)
+    return 0
+
+
+def _cmd_preview(args: argparse.Namespace) -> int:
+    from facemesh.io import save_image_rgb
+
+    from .augment import render_poses, sampled_placement, source_placement
+    from .errors import GazeAugError
+    from .render import create_renderer
+    from .viz import contact_sheet, plot_distributions
+
+    if args.n < 1:
+        raise GazeAugError(f"-n: expected >= 1, got {args.n}")
+    if args.output.suffix.lower() != ".png":
+        raise GazeAugError(f"{args.output}: the contact sheet is written as .png")
+    settings = _settings(args)
+    dist = _distribution(args)
+    asset, source = _face_asset(args, args.input)
+    # without a known gaze, the subject is taken to look into the source camera
+    target = args.gaze_target if args.gaze_target is not None else (0.0, 0.0, 0.0)
+    scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)
+    yp = dist.sample(args.n, args.seed)
+    places = [sampled_placement(asset, y, p) for y, p in yp]
+    augmented = render_poses(
+        scene, asset, places, gaze_target_mm=target, settings=settings, renderer_name=args.renderer
+    )
+    original = render_poses(scene, asset, [source_placement(asset)], gaze_target_mm=target, settings=settings)
+    sheet = contact_sheet(augmented)
+    plot_path = args.output.with_name(args.output.stem + "_distribution.png")
+    save_image_rgb(args.output, sheet)
+    plot_distributions(
+        {"original": original, "augmented": augmented}, plot_path, title=f"{Path(source).name}: head pose and gaze"
+    )
+    print(json.dumps({"sheet": str(args.output), "plot": str(plot_path), "samples": args.n, "seed": args.seed}))
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from .augment import face_asset
+    from .bench import bench_render
+    from .errors import GazeAugError
+    from .pipeline import fit_face, landmark_model_for, load_input_image, mesh_for_fit
+
+    if args.n < 1 or args.per_face < 1:
+        raise GazeAugError("--n and --per-face must be >= 1")
+    paths = args.faces or [None]
+    detector = landmark_model_for(None, None)
+    assets = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for p in paths:
+            image, camera, source = load_input_image(p, None)
+            assets.append(face_asset(mesh_for_fit(fit_face(image, camera, detector, source=source))))
+    print(json.dumps(bench_render(assets, renderer=args.renderer, n=args.n, per_face=args.per_face, seed=args.seed)))
+    return 0
+
+
+_COMMANDS = {"normalize": _cmd_normalize, "render": _cmd_render, "preview": _cmd_preview, "bench": _cmd_bench}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code."""
+    from facemesh.types import FaceMeshError
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help()
-        print("\ngazeaug: no commands yet in this version; build face meshes with 'facemesh build'.", file=sys.stderr)
+    try:
+        return _COMMANDS[args.command](args)
+    except (FaceMeshError, ImportError, FileNotFoundError) as exc:
+        print(f"gazeaug {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    return 0
 
 
 if __name__ == "__main__":
