@@ -77,6 +77,12 @@ class RaycastScene:
         self._triangles = np.asarray(triangles, dtype=np.uint32)
         self._uv = np.asarray(uv, dtype=np.float64)
         self._texture = np.ascontiguousarray(texture)
+        th, tw = self._texture.shape[:2]
+        # per triangle: first corner's texture pixel and the edges to the other two, gathered once per hit
+        corners = uv_to_pixels(self._uv, (tw, th))[self._triangles.astype(np.int64)]
+        self._tri_px = np.stack(
+            [corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=1
+        ).astype(np.float32)
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
         self._scene = o3d.t.geometry.RaycastingScene()
@@ -101,7 +107,9 @@ class RaycastScene:
         """(h, w, 3) uint8 RGB, the texture this scene samples."""
         return self._texture
 
-    def trace(self, origins_mm: ArrayLike, directions: ArrayLike) -> tuple[NDArray[np.bool_], NDArray[np.float32]]:
+    def trace(
+        self, origins_mm: ArrayLike, directions: ArrayLike
+    ) -> tuple[NDArray[np.bool_], NDArray[np.float32], NDArray[np.float32]]:
         """Cast rays; give where each hits the texture.
 
         Args:
@@ -109,9 +117,11 @@ class RaycastScene:
             directions: (..., 3) float, any length, scene frame.
 
         Returns:
-            ``(hit, texture_px)``: (...,) bool, whether the ray hit the mesh,
-            and (..., 2) float32 texture pixel coordinates (x, y; pixel centres
-            at integers) of the first hit, (0, 0) where nothing was hit.
+            ``(hit, texture_px, distance)``: (...,) bool, whether the ray hit the
+            mesh; (..., 2) float32 texture pixel coordinates (x, y; pixel centres
+            at integers) of the first hit, (0, 0) where nothing was hit; (...,)
+            float32 ray parameter of the hit (distance in units of the
+            direction's length; inf where nothing was hit).
         """
         o3d = import_open3d()
         o = np.asarray(origins_mm, dtype=np.float32)
@@ -119,18 +129,18 @@ class RaycastScene:
         shape = np.broadcast_shapes(o.shape, d.shape)
         if shape[-1] != 3:
             raise InputError(f"rays: expected (..., 3) origins and directions, got {o.shape} and {d.shape}")
-        rays = np.concatenate([np.broadcast_to(o, shape), np.broadcast_to(d, shape)], axis=-1).reshape(-1, 6)
-        ans = self._scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))
+        rays = np.empty(shape[:-1] + (6,), dtype=np.float32)
+        rays[..., :3] = o
+        rays[..., 3:] = d
+        ans = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
         prim = ans["primitive_ids"].numpy()
         bary = ans["primitive_uvs"].numpy()
         hit = prim != self._scene.INVALID_ID
-        tri = self._triangles[np.where(hit, prim, 0)].astype(np.int64)
-        b1, b2 = bary[:, 0:1], bary[:, 1:2]
-        uv = (1.0 - b1 - b2) * self._uv[tri[:, 0]] + b1 * self._uv[tri[:, 1]] + b2 * self._uv[tri[:, 2]]
-        th, tw = self._texture.shape[:2]
-        px = uv_to_pixels(uv, (tw, th)).astype(np.float32)
+        tri = self._tri_px[np.where(hit, prim, 0)]  # (K, 3, 2) float32: corner 0, edge 1, edge 2
+        px = tri[:, 0] + bary[:, 0:1] * tri[:, 1] + bary[:, 1:2] * tri[:, 2]
         px[~hit] = 0.0
-        return hit.reshape(shape[:-1]), px.reshape(shape[:-1] + (2,))
+        t_hit = ans["t_hit"].numpy()
+        return hit.reshape(shape[:-1]), px.reshape(shape[:-1] + (2,)), t_hit.reshape(shape[:-1])
 
     def render(
         self,
@@ -167,7 +177,7 @@ class RaycastScene:
         gx, gy = np.meshgrid(xs, ys)
         pix = np.stack([gx, gy, np.ones_like(gx)], axis=-1)
         dirs = (pix @ np.linalg.inv(k).T) @ rot  # camera axes -> scene frame (rows of rot are the axes)
-        hit, px = self.trace(np.broadcast_to(pos, dirs.shape), dirs)
+        hit, px, _ = self.trace(np.broadcast_to(pos, dirs.shape), dirs)
         import cv2  # noqa: PLC0415
 
         samples = cv2.remap(

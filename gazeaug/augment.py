@@ -27,12 +27,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from facemesh.conventions import rotation_from_yaw_pitch
+from facemesh.conventions import rotation_from_yaw_pitch, rotation_to_head_pitchyaw, vector_to_pitchyaw
 from facemesh.face_models import FaceKeypoints, builtin_face_model, keypoints_for
 from facemesh.types import FaceMesh
 
+from .camera import normalized_cameras
 from .errors import GazeAugError
-from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample, eye_cameras, gaze_direction
+from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 __all__ = ["FaceAsset", "face_asset", "HeadPlacement", "sampled_placement", "source_placement", "render_poses"]
@@ -120,12 +121,11 @@ def source_placement(asset: FaceAsset) -> HeadPlacement:
     )
 
 
-def _views(asset: FaceAsset, place: HeadPlacement, settings: NormalizationSettings) -> dict[str, View]:
-    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
-    a = place.rotation @ r_h.T
-    b = place.translation_mm - a @ t_h
-    cams = eye_cameras(place.rotation, place.translation_mm, asset.model_vertices_mm, asset.keypoints, settings)
-    return {side: View(camera=cams[side], rotation=a, translation_mm=b) for side in EYES}
+def _finite3(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise GazeAugError(f"{name}: expected finite (3,) values, got {np.asarray(value).tolist()}")
+    return v
 
 
 def render_poses(
@@ -162,32 +162,55 @@ def render_poses(
     # the gaze label in the head frame
     target_head = None
     vector_head = None
+    if gaze_target_mm is not None and gaze_vector is not None:
+        raise GazeAugError("give a gaze target or a gaze vector, not both")
     if gaze_target_mm is not None:
-        target_head = r_h.T @ (np.asarray(gaze_target_mm, dtype=np.float64) - t_h)
+        target_head = r_h.T @ (_finite3(gaze_target_mm, "gaze target") - t_h)
     if gaze_vector is not None:
-        vector_head = r_h.T @ np.asarray(gaze_vector, dtype=np.float64)
-    views: list[View] = []
-    per_place: list[dict[str, View]] = []
-    for place in placements:
-        v = _views(asset, place, s)
-        per_place.append(v)
-        views.extend(v[side] for side in EYES)
+        vector_head = r_h.T @ _finite3(gaze_vector, "gaze vector")
+        if np.linalg.norm(vector_head) < 1e-12:
+            raise GazeAugError("gaze: zero-length gaze vector")
+    rot = np.stack([p.rotation for p in placements])  # (P, 3, 3) head -> application camera
+    trans = np.stack([p.translation_mm for p in placements])  # (P, 3)
+    kp, model = asset.keypoints, asset.model_vertices_mm
+    eyes_head = np.stack([model[list(kp.eye(side))].mean(axis=0) for side in EYES])  # (2, 3)
+    refs = np.einsum("pij,ej->pei", rot, eyes_head) + trans[:, None, :]  # (P, 2, 3)
+    cams = normalized_cameras(
+        refs.reshape(-1, 3),
+        np.repeat(rot, 2, axis=0),
+        distance_mm=s.distance_mm,
+        focal_px=s.focal_px,
+        size_wh=s.patch_size_wh,
+    )
+    a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
+    b = trans - np.einsum("pij,j->pi", a, t_h)
+    views = [View(camera=cams[k], rotation=a[k // 2], translation_mm=b[k // 2]) for k in range(len(cams))]
     out = scene.render(views)
+    # labels, all eyes at once, exactly as normalization computes them
+    r_norm = np.stack([c.rotation for c in cams]).reshape(-1, 2, 3, 3)
+    head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])  # (P, 2, 2)
+    gaze = None
+    if target_head is not None or vector_head is not None:
+        if target_head is not None:
+            g = (np.einsum("pij,j->pi", rot, target_head) + trans)[:, None, :] - refs
+        else:
+            g = np.broadcast_to(np.einsum("pij,j->pi", rot, vector_head)[:, None, :], refs.shape)
+        norms = np.linalg.norm(g, axis=-1, keepdims=True)
+        if (norms < 1e-9).any():
+            raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye)")
+        gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))
     samples = []
-    for i, (place, v) in enumerate(zip(placements, per_place)):
-        target = None if target_head is None else place.rotation @ target_head + place.translation_mm
-        vector = None if vector_head is None else place.rotation @ vector_head
-        eyes = {}
-        for j, side in enumerate(EYES):
-            cam = v[side].camera
-            g = gaze_direction(cam.reference_mm, target, vector)
-            eyes[side] = EyePatch(
+    for i, place in enumerate(placements):
+        eyes = {
+            side: EyePatch(
                 image=out.images[2 * i + j],
-                camera=cam,
-                head_pose=cam.head_pose_pitchyaw(place.rotation),
-                gaze=None if g is None else cam.gaze_pitchyaw(g),
+                camera=cams[2 * i + j],
+                head_pose=head[i, j],
+                gaze=None if gaze is None else gaze[i, j],
                 coverage=float(out.coverage[2 * i + j]),
             )
+            for j, side in enumerate(EYES)
+        }
         m = dict(meta or {})
         if place.yaw_pitch_rad is not None:
             m["yaw_pitch_deg"] = np.degrees(place.yaw_pitch_rad).tolist()
@@ -196,7 +219,7 @@ def render_poses(
                 left=eyes["left"],
                 right=eyes["right"],
                 settings=s,
-                head_rotation=np.array(place.rotation),
+                head_rotation=place.rotation,
                 source=f"render:{renderer_name}",
                 meta=m,
             )

@@ -30,7 +30,24 @@ from facemesh.conventions import rotation_to_head_pitchyaw, vector_to_pitchyaw
 
 from .errors import GazeAugError
 
-__all__ = ["NormalizedCamera", "normalized_camera"]
+__all__ = ["NormalizedCamera", "normalized_camera", "normalized_cameras", "pixel_grid"]
+
+_EYE3 = np.eye(3)
+
+
+def pixel_grid(size_wh: tuple[int, int]) -> NDArray[np.float64]:
+    """(H, W, 3) float64 homogeneous pixel centres ``(u, v, 1)`` (read-only, cached per size)."""
+    key = (int(size_wh[0]), int(size_wh[1]))
+    grid = _GRIDS.get(key)
+    if grid is None:
+        u, v = np.meshgrid(np.arange(key[0], dtype=np.float64), np.arange(key[1], dtype=np.float64))
+        grid = np.stack([u, v, np.ones_like(u)], axis=-1)
+        grid.setflags(write=False)
+        _GRIDS[key] = grid
+    return grid
+
+
+_GRIDS: dict[tuple[int, int], NDArray[np.float64]] = {}
 
 
 @dataclass(frozen=True)
@@ -55,9 +72,9 @@ class NormalizedCamera:
     def __post_init__(self) -> None:
         r = np.array(self.rotation, dtype=np.float64)
         e = np.array(self.reference_mm, dtype=np.float64)
-        if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-9):
-            raise GazeAugError(f"normalized camera rotation: expected a (3, 3) rotation, got {r.shape}")
-        if e.shape != (3,) or not np.all(np.isfinite(e)):
+        if r.shape != (3, 3) or not float(np.abs(r @ r.T - _EYE3).max()) < 1e-9:
+            raise GazeAugError(f"normalized camera rotation: expected a (3, 3) rotation, got {r.tolist()}")
+        if e.shape != (3,) or not np.isfinite(e).all():
             raise GazeAugError(f"normalized camera reference point: expected finite (3,), got {e}")
         r.setflags(write=False)
         e.setflags(write=False)
@@ -80,17 +97,20 @@ class NormalizedCamera:
         s = np.diag([1.0, 1.0, self.scale])
         return self.camera_matrix @ s @ self.rotation @ np.linalg.inv(np.asarray(real_camera_matrix, dtype=np.float64))
 
+    @property
+    def pixel_to_ray(self) -> NDArray[np.float64]:
+        """(3, 3) float64 ``R^T S^-1 C_n^-1``: normalized pixel ``(u, v, 1)`` -> ray direction, real camera frame."""
+        w, h = self.size_wh
+        f = self.focal_px
+        k_inv = np.array([[1.0 / f, 0.0, -w / (2.0 * f)], [0.0, 1.0 / f, -h / (2.0 * f)], [0.0, 0.0, 1.0]])
+        return self.rotation.T @ np.diag([1.0, 1.0, 1.0 / self.scale]) @ k_inv
+
     def ray_directions(self) -> NDArray[np.float64]:
         """(H, W, 3) float64: for each normalized pixel centre, its ray in the real camera frame.
 
-        ``R^T S^-1 C_n^-1 (u, v, 1)``; the rays start at the real camera's
-        centre. Scaled so that the third component of ``S^-1 C_n^-1 (u, v, 1)`` is 1.
+        ``R^T S^-1 C_n^-1 (u, v, 1)``; the rays start at the real camera's centre.
         """
-        w, h = self.size_wh
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        pix = np.stack([u, v, np.ones_like(u)], axis=-1)
-        s_inv = np.diag([1.0, 1.0, 1.0 / self.scale])
-        return pix @ (self.rotation.T @ s_inv @ np.linalg.inv(self.camera_matrix)).T
+        return pixel_grid(self.size_wh) @ self.pixel_to_ray.T
 
     def normalize_vector(self, vector: ArrayLike) -> NDArray[np.float64]:
         """(3,) direction in the real camera frame -> (3,) unit direction in the normalized frame (``R v``)."""
@@ -112,6 +132,51 @@ class NormalizedCamera:
     def gaze_pitchyaw(self, gaze_vector: ArrayLike) -> NDArray[np.float64]:
         """(2,) float64 radians: a real-camera-frame gaze direction as (pitch, yaw) in the normalized frame."""
         return vector_to_pitchyaw(self.normalize_vector(gaze_vector))
+
+
+def normalized_cameras(
+    references_mm: ArrayLike,
+    head_rotations: ArrayLike,
+    *,
+    distance_mm: float,
+    focal_px: float,
+    size_wh: tuple[int, int],
+) -> list[NormalizedCamera]:
+    """:func:`normalized_camera` for K reference points at once.
+
+    Args:
+        references_mm: (K, 3) float, mm, real camera frame.
+        head_rotations: (K, 3, 3) float, head frame -> real camera frame.
+    """
+    e = np.asarray(references_mm, dtype=np.float64).reshape(-1, 3)
+    hr = np.asarray(head_rotations, dtype=np.float64).reshape(-1, 3, 3)
+    if len(hr) != len(e):
+        raise GazeAugError(f"expected one head rotation per reference point, got {len(hr)} and {len(e)}")
+    if not np.isfinite(e).all():
+        raise GazeAugError("reference points: expected finite values (mm)")
+    if (e[:, 2] <= 0).any():
+        bad = e[np.argmax(e[:, 2] <= 0)]
+        raise GazeAugError(f"reference point {np.round(bad, 1).tolist()} mm is behind the camera (z <= 0)")
+    if not (np.isfinite(distance_mm) and distance_mm > 0 and np.isfinite(focal_px) and focal_px > 0):
+        raise GazeAugError(f"normalized distance and focal must be > 0, got {distance_mm} mm and {focal_px} px")
+    w, h = (int(v) for v in size_wh)
+    if w <= 0 or h <= 0:
+        raise GazeAugError(f"normalized image size: expected positive (width, height), got {size_wh}")
+    forward = e / np.linalg.norm(e, axis=1, keepdims=True)
+    down = np.cross(forward, hr[:, :, 0])
+    n = np.linalg.norm(down, axis=1, keepdims=True)
+    if (n < 1e-9).any():
+        raise GazeAugError("the head's x axis is parallel to the line of sight; the normalized camera is undefined")
+    down /= n
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    rot = np.stack([right, down, forward], axis=1)
+    return [
+        NormalizedCamera(
+            rotation=rot[i], reference_mm=e[i], distance_mm=float(distance_mm), focal_px=float(focal_px), size_wh=(w, h)
+        )
+        for i in range(len(e))
+    ]
 
 
 def normalized_camera(
@@ -136,27 +201,12 @@ def normalized_camera(
             x axis is parallel to the line of sight.
     """
     e = np.asarray(reference_mm, dtype=np.float64)
-    if e.shape != (3,) or not np.all(np.isfinite(e)):
-        raise GazeAugError(f"reference point: expected finite (3,) mm, got {e}")
-    if e[2] <= 0:
-        raise GazeAugError(f"reference point {np.round(e, 1).tolist()} mm is behind the camera (z <= 0)")
-    if not (np.isfinite(distance_mm) and distance_mm > 0 and np.isfinite(focal_px) and focal_px > 0):
-        raise GazeAugError(f"normalized distance and focal must be > 0, got {distance_mm} mm and {focal_px} px")
-    w, h = (int(v) for v in size_wh)
-    if w <= 0 or h <= 0:
-        raise GazeAugError(f"normalized image size: expected positive (width, height), got {size_wh}")
-    hx = np.asarray(head_rotation, dtype=np.float64)[:, 0]
-    forward = e / np.linalg.norm(e)
-    down = np.cross(forward, hx)
-    if np.linalg.norm(down) < 1e-9:
-        raise GazeAugError("the head's x axis is parallel to the line of sight; the normalized camera is undefined")
-    down /= np.linalg.norm(down)
-    right = np.cross(down, forward)
-    right /= np.linalg.norm(right)
-    return NormalizedCamera(
-        rotation=np.stack([right, down, forward]),
-        reference_mm=e,
-        distance_mm=float(distance_mm),
-        focal_px=float(focal_px),
-        size_wh=(w, h),
-    )
+    if e.shape != (3,):
+        raise GazeAugError(f"reference point: expected (3,) mm, got shape {e.shape}")
+    return normalized_cameras(
+        e[None],
+        np.asarray(head_rotation, dtype=np.float64)[None],
+        distance_mm=distance_mm,
+        focal_px=focal_px,
+        size_wh=size_wh,
+    )[0]

@@ -111,6 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--per-face", type=int, default=16, help="samples per face before a new face (default 16)")
     br.add_argument("--faces", type=Path, nargs="*", default=None, help="face images (default: the built-in sample)")
     br.add_argument("--seed", type=int, default=0)
+    br.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    br.add_argument("--batch", type=int, default=16, help="samples per render call (default 16)")
     return parser
 
 
@@ -280,8 +282,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
     from .pipeline import fit_face, landmark_model_for, load_input_image, mesh_for_fit
 
-    if args.n < 1 or args.per_face < 1:
-        raise GazeAugError("--n and --per-face must be >= 1")
+    if args.n < 1 or args.per_face < 1 or args.workers < 1 or args.batch < 1:
+        raise GazeAugError("--n, --per-face, --workers and --batch must be >= 1")
     paths = args.faces or [None]
     detector = landmark_model_for(None, None)
     assets = []
@@ -290,7 +292,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         for p in paths:
             image, camera, source = load_input_image(p, None)
             assets.append(face_asset(mesh_for_fit(fit_face(image, camera, detector, source=source))))
-    print(json.dumps(bench_render(assets, renderer=args.renderer, n=args.n, per_face=args.per_face, seed=args.seed)))
+    result = bench_render(
+        assets,
+        renderer=args.renderer,
+        n=args.n,
+        per_face=args.per_face,
+        seed=args.seed,
+        workers=args.workers,
+        batch=args.batch,
+    )
+    print(json.dumps(result))
     return 0
 
 

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from facemesh.face_models import FaceKeypoints
 from facemesh.types import CameraIntrinsics, HeadPose
 
-from .camera import NormalizedCamera, normalized_camera
+from .camera import NormalizedCamera, normalized_cameras
 from .errors import GazeAugError
 from .texture import MipPyramid, build_pyramid, sample
 
@@ -174,16 +174,15 @@ def eye_cameras(
 ) -> dict[str, NormalizedCamera]:
     """The normalized camera of each eye at a head pose (``{"left": ..., "right": ...}``)."""
     refs = reference_points(head_rotation, head_translation_mm, model_vertices_mm, keypoints)
-    return {
-        side: normalized_camera(
-            refs[side],
-            head_rotation,
-            distance_mm=settings.distance_mm,
-            focal_px=settings.focal_px,
-            size_wh=settings.patch_size_wh,
-        )
-        for side in EYES
-    }
+    r = np.asarray(head_rotation, dtype=np.float64)
+    cams = normalized_cameras(
+        np.stack([refs[side] for side in EYES]),
+        np.stack([r, r]),
+        distance_mm=settings.distance_mm,
+        focal_px=settings.focal_px,
+        size_wh=settings.patch_size_wh,
+    )
+    return dict(zip(EYES, cams))
 
 
 def source_coordinates(camera: NormalizedCamera, real: CameraIntrinsics) -> NDArray[np.float32]:

@@ -56,45 +56,34 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
     return MipPyramid(levels=tuple(levels))
 
 
-def _step_lengths(coords: NDArray[np.float32], valid: NDArray[np.bool_], axis: int) -> NDArray[np.float64]:
-    """Mean length of the source steps to the valid neighbours along ``axis`` (NaN where there is none)."""
-    d = np.diff(coords, axis=axis)
-    n_ax = valid.shape[axis]
-    ok = np.take(valid, np.arange(1, n_ax), axis=axis) & np.take(valid, np.arange(0, n_ax - 1), axis=axis)
-    length = np.where(ok, np.sqrt((d.astype(np.float64) ** 2).sum(-1)), 0.0)
-    pad = [(0, 0)] * length.ndim
-    pad[axis] = (1, 0)
-    before_l, before_n = np.pad(length, pad), np.pad(ok, pad)
-    pad[axis] = (0, 1)
-    after_l, after_n = np.pad(length, pad), np.pad(ok, pad)
-    n = before_n.astype(np.float64) + after_n
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, (before_l + after_l) / n, np.nan)
-
-
-def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[np.float64]:
+def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[np.float32]:
     """Per-pixel pyramid level from the source positions of neighbouring pixels.
+
+    The footprint of a pixel is the longest step in source pixels to any of
+    its four neighbours that is also valid (the GPU rule, made symmetric).
 
     Args:
         coords_px: (P, H, W, 2) float, source pixel positions (x, y) of P output images.
         valid: (P, H, W) bool, where the position is defined (rays that hit the mesh).
 
     Returns:
-        (P, H, W) float64 ``log2`` of the footprint, >= 0. Pixels without a valid
-        neighbour take their image's median.
+        (P, H, W) float32 ``log2`` of the footprint, >= 0 (0 for pixels without a valid neighbour).
     """
-    lx = _step_lengths(coords_px, valid, axis=2)
-    ly = _step_lengths(coords_px, valid, axis=1)
-    foot = np.fmax(lx, ly)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lod = np.log2(np.maximum(foot, 1.0))
-    bad = ~np.isfinite(lod)
-    if bad.any():
-        flat = lod.reshape(len(lod), -1)
-        med = np.nanmedian(np.where(np.isfinite(flat), flat, np.nan), axis=1) if np.isfinite(flat).any() else None
-        fill = np.zeros(len(lod)) if med is None else np.nan_to_num(med, nan=0.0)
-        lod = np.where(bad, fill[:, None, None], lod)
-    return lod
+    c = np.asarray(coords_px, dtype=np.float32)
+    foot = np.zeros(valid.shape, dtype=np.float32)
+    for axis in (1, 2):
+        d = np.diff(c, axis=axis)
+        length = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
+        n = valid.shape[axis]
+        both = np.take(valid, np.arange(1, n), axis=axis) & np.take(valid, np.arange(0, n - 1), axis=axis)
+        length = np.where(both, length, np.float32(0.0))
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis] = slice(0, n - 1)
+        hi[axis] = slice(1, n)
+        np.maximum(foot[tuple(lo)], length, out=foot[tuple(lo)])
+        np.maximum(foot[tuple(hi)], length, out=foot[tuple(hi)])
+    return np.log2(np.maximum(foot, np.float32(1.0)))
 
 
 def _remap(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -104,9 +93,7 @@ def _remap(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.flo
     out = np.empty(mx.shape + (3,), dtype=np.float32)
     for a in range(0, rows, _MAX_REMAP_ROWS):
         b = min(rows, a + _MAX_REMAP_ROWS)
-        out[a:b] = cv2.remap(
-            image, mx[a:b], my[a:b], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-        ).astype(np.float32)
+        out[a:b] = cv2.remap(image, mx[a:b], my[a:b], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out
 
 
@@ -134,14 +121,13 @@ def sample(
     if not antialias or len(pyramid.levels) == 1:
         out = _remap(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
     else:
-        lod = np.minimum(level_of_detail(coords_px, valid), len(pyramid.levels) - 1).reshape(p * h, w)
+        lod = np.minimum(level_of_detail(coords_px, valid), np.float32(len(pyramid.levels) - 1)).reshape(p * h, w)
         out_flat = np.zeros((p * h, w, 3), dtype=np.float32)
-        for level, image in enumerate(pyramid.levels):
-            weight = np.clip(1.0 - np.abs(lod - level), 0.0, 1.0).astype(np.float32)
-            if not weight.any():
-                continue
+        low, high = int(np.floor(lod.min())), int(np.ceil(lod.max()))
+        for level in range(low, high + 1):
+            weight = np.maximum(np.float32(1.0) - np.abs(lod - np.float32(level)), np.float32(0.0))
             f = np.float32(2.0**-level)
-            out_flat += weight[..., None] * _remap(image, mx * f, my * f)
+            out_flat += weight[..., None] * _remap(pyramid.levels[level], mx * f, my * f)
         out = out_flat.reshape(p, h, w, 3)
     out[~valid] = 0.0
     return out

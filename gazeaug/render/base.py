@@ -28,7 +28,7 @@ from facemesh.face_models.triangulation import boundary_loops
 from facemesh.pose import project_points
 from facemesh.types import FaceMesh
 
-from ..camera import NormalizedCamera
+from ..camera import NormalizedCamera, pixel_grid
 from ..errors import GazeAugError
 
 __all__ = ["RenderMesh", "View", "RenderedPatches", "Scene", "Renderer", "render_mesh", "fill_misses", "view_rays"]
@@ -123,9 +123,12 @@ def view_rays(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.fl
         raise GazeAugError(f"views to render together must share one patch size, got {sorted(sizes)}")
     a = np.stack([v.rotation for v in views])
     b = np.stack([v.translation_mm for v in views])
-    dirs_app = np.stack([v.camera.ray_directions() for v in views])  # (P, H, W, 3) application frame
-    dirs = np.einsum("phwi,pij->phwj", dirs_app, a)  # A^T d as rows
-    origins = -np.einsum("pij,pi->pj", a, b)  # A^T (0 - b)
+    # mesh-frame ray of pixel (u, v, 1): A^T R^T S^-1 C^-1 (u, v, 1)
+    m = np.einsum("pji,pjk->pik", a, np.stack([v.camera.pixel_to_ray for v in views]))
+    w, h = sizes.pop()
+    grid = pixel_grid((w, h)).reshape(-1, 3)
+    dirs = np.matmul(grid[None], m.transpose(0, 2, 1)).reshape(len(views), h, w, 3)
+    origins = -np.einsum("pji,pj->pi", a, b)  # A^T (0 - b)
     return origins[:, None, None, :], dirs
 
 

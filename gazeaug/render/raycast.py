@@ -33,7 +33,7 @@ class RaycastFaceScene:
     def render(self, views: Sequence[View]) -> RenderedPatches:
         """Render each view; see :class:`~gazeaug.render.base.Scene`."""
         origins, dirs = view_rays(views)
-        hit, coords = self._scene.trace(origins, dirs)
+        hit, coords, _ = self._scene.trace(origins, dirs)
         colours = sample(self._pyramid, coords, hit, antialias=self._antialias)
         coverage = hit.reshape(len(hit), -1).mean(axis=1)
         return RenderedPatches(images=fill_misses(colours, hit), coverage=coverage.astype(np.float64))
