@@ -192,9 +192,9 @@ def render_poses(
     gaze = None
     if target_head is not None or vector_head is not None:
         if target_head is not None:
-            g = (np.einsum("pij,j->pi", rot, target_head) + trans)[:, None, :] - refs
+            g = (rot @ target_head + trans)[:, None, :] - refs
         else:
-            g = np.broadcast_to(np.einsum("pij,j->pi", rot, vector_head)[:, None, :], refs.shape)
+            g = np.broadcast_to((rot @ np.asarray(vector_head))[:, None, :], refs.shape)
         norms = np.linalg.norm(g, axis=-1, keepdims=True)
         if (norms < 1e-9).any():
             raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye)")

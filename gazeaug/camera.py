@@ -147,6 +147,9 @@ def normalized_cameras(
     Args:
         references_mm: (K, 3) float, mm, real camera frame.
         head_rotations: (K, 3, 3) float, head frame -> real camera frame.
+        distance_mm: d_n.
+        focal_px: f_n.
+        size_wh: (width, height) of the normalized images.
     """
     e = np.asarray(references_mm, dtype=np.float64).reshape(-1, 3)
     hr = np.asarray(head_rotations, dtype=np.float64).reshape(-1, 3, 3)

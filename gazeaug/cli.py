@@ -222,6 +222,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
         if args.yaw is not None:
             yaw, pitch = math.radians(args.yaw), math.radians(args.pitch)
         else:
+            assert dist is not None
             yaw, pitch = dist.sample(1, args.seed)[0]
         place = sampled_placement(asset, yaw, pitch, args.distance_to_camera)
     scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)

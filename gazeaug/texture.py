@@ -50,9 +50,9 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
     img = np.ascontiguousarray(image_rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         raise GazeAugError(f"texture: expected (H, W, 3) uint8, got {img.shape} {img.dtype}")
-    levels = [img]
+    levels: list[NDArray[np.uint8]] = [img]
     while len(levels) <= max_levels and min(levels[-1].shape[:2]) >= 8:
-        levels.append(cv2.pyrDown(levels[-1]))
+        levels.append(np.asarray(cv2.pyrDown(levels[-1]), dtype=np.uint8))
     return MipPyramid(levels=tuple(levels))
 
 

@@ -23,7 +23,7 @@ def draw_gaze(patch: NDArray[np.uint8], gaze_pitchyaw: NDArray[np.float64], scal
     """
     import cv2
 
-    big = cv2.resize(patch, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    big = np.asarray(cv2.resize(patch, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST), dtype=np.uint8)
     h, w = big.shape[:2]
     g = pitchyaw_to_vector(gaze_pitchyaw)
     length = 0.45 * w
@@ -49,7 +49,7 @@ def contact_sheet(samples: Sequence[NormalizedSample], columns: int = 4, scale: 
             else:
                 import cv2
 
-                pair.append(cv2.resize(e.image, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
+                pair.append(np.asarray(cv2.resize(e.image, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)))
         tile = np.concatenate(pair, axis=1)
         tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0)), constant_values=255))
     if not tiles:

@@ -1,0 +1,104 @@
+"""The gazeaug command line: outputs, recorded parameters, bad input (exit 2, nothing written)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gazeaug.cli import main
+from gazeaug.normalize import load_npz
+
+
+@pytest.fixture(scope="module")
+def glb(tmp_path_factory, shared_data):
+    from facemesh.cli import main as facemesh_main
+
+    out = tmp_path_factory.mktemp("glb") / "face.glb"
+    assert facemesh_main(["build", str(shared_data / "faces" / "sergey.png"), "-o", str(out)]) == 0
+    return out
+
+
+def test_normalize_the_mpii_sample(mpii_sample, tmp_path, capsys):
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    lm = tmp_path / "lm.json"
+    lm.write_text(json.dumps(ann["landmarks_6_px"]))
+    out = tmp_path / "n.npz"
+    args = [
+        "normalize",
+        str(mpii_sample / ann["image"]),
+        "--camera",
+        str(mpii_sample / "cameraCalib.xml"),
+        "--landmarks",
+        str(lm),
+        "--face-model",
+        str(mpii_sample / "faceModelGeneric.txt"),
+        "--gaze-target",
+        *map(str, ann["gaze_target_3d_camera_mm"]),
+        "-o",
+        str(out),
+    ]
+    assert main(args) == 0
+    z = load_npz(out)
+    assert z["left_eye"].shape == (36, 60, 3) and "gaze_left" in z and "gaze_right" in z
+    report = json.loads(capsys.readouterr().out)
+    assert report["gaze_left_deg"] == pytest.approx(np.degrees(z["gaze_left"]).tolist(), abs=1e-3)
+    # settings are recorded
+    assert main(args[:-2] + ["--distance", "500", "--focal", "960", "--patch-size", "64", "40", "-o", str(out)]) == 0
+    z = load_npz(out)
+    assert float(z["distance_mm"]) == 500 and float(z["focal_px"]) == 960 and z["left_eye"].shape == (40, 64, 3)
+
+
+def test_render_from_glb_and_image(glb, shared_data, tmp_path):
+    out = tmp_path / "r.npz"
+    assert main(["render", str(glb), "--original-pose", "-o", str(out)]) == 0
+    z = load_npz(out)
+    assert str(z["source"]) == "render:raycast" and "gaze_left" not in z
+    assert (
+        main(["render", str(glb), "--yaw", "10", "--pitch", "30", "--gaze-target", "0", "0", "0", "-o", str(out)]) == 0
+    )
+    z = load_npz(out)
+    assert z["meta"]["yaw_pitch_deg"] == pytest.approx([10, 30]) and "gaze_left" in z
+    assert main(["render", str(glb), "--seed", "3", "--yaw-std", "10", "-o", str(out)]) == 0
+    a = load_npz(out)["meta"]["yaw_pitch_deg"]
+    assert main(["render", str(glb), "--seed", "3", "--yaw-std", "10", "-o", str(out)]) == 0
+    assert load_npz(out)["meta"]["yaw_pitch_deg"] == a  # seeded
+    assert main(["render", str(shared_data / "faces" / "astronaut.png"), "--rig", "wheelchair", "-o", str(out)]) == 0
+
+
+def test_preview_writes_the_sheet_and_the_plot(glb, tmp_path):
+    out = tmp_path / "sheet.png"
+    assert main(["preview", str(glb), "-n", "6", "-o", str(out)]) == 0
+    assert out.is_file() and (tmp_path / "sheet_distribution.png").is_file()
+
+
+def test_bench_prints_one_json_line(capsys):
+    assert main(["bench", "render", "--n", "4", "--per-face", "2"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    result = json.loads(line)
+    assert result["renderer"] == "raycast" and result["patches"] == 8 and result["patches_per_second"] > 0
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["render", "MISSING.png", "-o", "{out}"], "MISSING.png"),
+        (["render", "{glb}", "--yaw-var", "-1", "-o", "{out}"], ">= 0"),
+        (["render", "{glb}", "--yaw-var", "nan", "-o", "{out}"], "finite"),
+        (["render", "{glb}", "--yaw", "10", "-o", "{out}"], "both --yaw and --pitch"),
+        (["render", "{bad_glb}", "--original-pose", "-o", "{out}"], "bad.glb"),
+        (["render", "{glb}", "--gaze-target", "0", "0", "nan", "-o", "{out}"], "finite"),
+        (["normalize", "{glb}", "-o", "{out}"], "face.glb"),
+        (["render", "{glb}", "--rig", "nowhere", "-o", "{out}"], "nowhere"),
+    ],
+)
+def test_bad_input_exits_2_and_writes_nothing(glb, tmp_path, capsys, args, message):
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(b"glTF not really")
+    out = tmp_path / "out.npz"
+    filled = [a.format(out=out, glb=glb, bad_glb=bad) for a in args]
+    assert main(filled) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+    assert not list(tmp_path.glob("*.tmp*"))

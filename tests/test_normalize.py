@@ -1,0 +1,173 @@
+"""Data normalization (Zhang et al. 2018) against hand computations of the same formulas."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from facemesh.camera import load_camera
+from facemesh.face_models import KEYPOINTS, load_face_model
+from facemesh.io import load_image_rgb
+from facemesh.pose import solve_head_pose
+from facemesh.types import CameraIntrinsics, HeadPose
+from gazeaug.camera import normalized_camera
+from gazeaug.errors import GazeAugError
+from gazeaug.normalize import NormalizationSettings, load_npz, normalize_image, save_npz
+
+
+def _zhang_by_hand(face_model_3xn, landmarks, camera_matrix, distortion, gaze_target):
+    """Zhang's normalizeData, written out independently: returns per eye (R, W, gaze (p, y), head (p, y))."""
+    ok, rvec, tvec = cv2.solvePnP(
+        face_model_3xn.T.reshape(-1, 1, 3),
+        landmarks.reshape(-1, 1, 2),
+        camera_matrix,
+        distortion,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
+    ok, rvec, tvec = cv2.solvePnP(
+        face_model_3xn.T.reshape(-1, 1, 3), landmarks.reshape(-1, 1, 2), camera_matrix, distortion, rvec, tvec, True
+    )
+    head_r = cv2.Rodrigues(rvec)[0]
+    fc = head_r @ face_model_3xn + tvec  # 3 x 6, camera frame
+    out = {}
+    for side, cols in (("right", [0, 1]), ("left", [2, 3])):
+        et = fc[:, cols].mean(axis=1)
+        distance = np.linalg.norm(et)
+        forward = et / distance
+        down = np.cross(forward, head_r[:, 0])
+        down /= np.linalg.norm(down)
+        right = np.cross(down, forward)
+        right /= np.linalg.norm(right)
+        r = np.c_[right, down, forward].T
+        cam_n = np.array([[650.0, 0, 30], [0, 650.0, 18], [0, 0, 1]])
+        w = cam_n @ np.diag([1.0, 1.0, 600.0 / distance]) @ r @ np.linalg.inv(camera_matrix)
+        g = r @ (gaze_target - et)
+        g /= np.linalg.norm(g)
+        gaze = np.array([np.arcsin(-g[1]), np.arctan2(-g[0], -g[2])])
+        zv = (r @ head_r)[:, 2]
+        head = np.array([np.arcsin(zv[1]), np.arctan2(zv[0], zv[2])])
+        out[side] = (r, w, gaze, head)
+    return out
+
+
+@pytest.fixture(scope="module")
+def mpii(mpii_sample):
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=tuple(ann["image_size_wh"]))
+    model = load_face_model(mpii_sample / "faceModelGeneric.txt")
+    landmarks = np.array(ann["landmarks_6_px"], dtype=np.float64)
+    image = load_image_rgb(mpii_sample / ann["image"])
+    target = np.array(ann["gaze_target_3d_camera_mm"], dtype=np.float64)
+    raw = np.loadtxt(mpii_sample / "faceModelGeneric.txt")
+    return cam, model, landmarks, image, target, raw
+
+
+def test_mpii_labels_equal_a_hand_computation(mpii):
+    cam, model, landmarks, image, target, raw = mpii
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam)
+    sample = normalize_image(image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"], gaze_target_mm=target)
+    hand = _zhang_by_hand(raw, landmarks, cam.matrix, cam.distortion, target)
+    for side in ("left", "right"):
+        r, w, gaze, head = hand[side]
+        eye = sample.eye(side)
+        np.testing.assert_allclose(eye.camera.rotation, r, atol=1e-7)
+        np.testing.assert_allclose(eye.camera.warp_matrix(cam.matrix), w, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(np.degrees(eye.gaze), np.degrees(gaze), atol=1e-5)
+        np.testing.assert_allclose(np.degrees(eye.head_pose), np.degrees(head), atol=1e-5)
+    # the subject's left eye is on the image's right: larger x in the camera frame
+    assert sample.left.camera.reference_mm[0] > sample.right.camera.reference_mm[0]
+    # plausibility: p00 looks to the image's left of the camera (target x = -128 mm): positive yaw
+    assert 5 < np.degrees(sample.left.gaze[1]) < 30
+
+
+def test_without_antialiasing_on_an_undistorted_camera_it_is_warp_perspective(mpii):
+    cam, model, landmarks, image, target, raw = mpii
+    cam0 = CameraIntrinsics(cam.matrix, np.zeros(5), cam.image_size)
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam0)
+    s = normalize_image(
+        image, cam0, pose, model.vertices_mm, KEYPOINTS["mpii6"], settings=NormalizationSettings(antialias=False)
+    )
+    for side in ("left", "right"):
+        w = s.eye(side).camera.warp_matrix(cam0.matrix)
+        expected = cv2.warpPerspective(image, w, (60, 36))
+        diff = np.abs(s.eye(side).image.astype(int) - expected)
+        # OpenCV's warp uses fixed-point weights: rounding may differ by one level
+        assert diff.max() <= 1 and diff.mean() < 0.01
+
+
+def test_antialiasing_changes_little_where_there_is_little_to_alias(mpii):
+    cam, model, landmarks, image, target, raw = mpii
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam)
+    a = normalize_image(image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"])
+    b = normalize_image(
+        image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"], settings=NormalizationSettings(antialias=False)
+    )
+    mad = np.abs(a.left.image.astype(float) - b.left.image).mean()
+    assert 0 < mad < 6  # MPII eyes are minified ~2x: a mild blur
+
+
+def test_normalized_camera_by_hand():
+    # an eye straight ahead of the camera, head frontal: R = I and W = C_n S C_r^-1
+    cam = normalized_camera([0, 0, 300.0], np.eye(3), distance_mm=600, focal_px=650, size_wh=(60, 36))
+    np.testing.assert_allclose(cam.rotation, np.eye(3), atol=1e-12)
+    k = np.array([[1000.0, 0, 640], [0, 1000.0, 360], [0, 0, 1]])
+    expected = np.array([[650.0, 0, 30], [0, 650, 18], [0, 0, 1]]) @ np.diag([1, 1, 2.0]) @ np.linalg.inv(k)
+    np.testing.assert_allclose(cam.warp_matrix(k), expected, atol=1e-12)
+    # an eye 45 deg to the right (x = z): forward = (1, 0, 1)/sqrt 2, x axis perpendicular to it in the x-z plane
+    cam = normalized_camera([400.0, 0, 400.0], np.eye(3), distance_mm=600, focal_px=650, size_wh=(60, 36))
+    s = np.sqrt(0.5)
+    np.testing.assert_allclose(cam.rotation, [[s, 0, -s], [0, 1, 0], [s, 0, s]], atol=1e-12)
+    # looking from that eye into the camera is (0, 0) in its normalized frame
+    np.testing.assert_allclose(cam.gaze_pitchyaw([-400.0, 0, -400.0]), [0, 0], atol=1e-12)
+    # the head, frontal to the real camera, is turned yaw = -45 deg (toward the image's right) for this camera
+    np.testing.assert_allclose(np.degrees(cam.head_pose_pitchyaw(np.eye(3))), [0, -45], atol=1e-9)
+    # denormalization undoes normalization
+    g = np.array([0.3, -0.2, -0.93])
+    np.testing.assert_allclose(cam.denormalize_vector(cam.normalize_vector(g)), g / np.linalg.norm(g), atol=1e-12)
+
+
+def test_bad_gaze_and_eyes_behind_the_camera(mpii):
+    cam, model, landmarks, image, target, raw = mpii
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam)
+    kp = KEYPOINTS["mpii6"]
+    with pytest.raises(GazeAugError, match="finite"):
+        normalize_image(image, cam, pose, model.vertices_mm, kp, gaze_target_mm=[np.nan, 0, 0])
+    with pytest.raises(GazeAugError, match="zero"):
+        normalize_image(image, cam, pose, model.vertices_mm, kp, gaze_vector=[0, 0, 0])
+    eye = pose.head_to_camera(model.vertices_mm[[2, 3]]).mean(axis=0)
+    with pytest.raises(GazeAugError, match="zero-length"):
+        normalize_image(image, cam, pose, model.vertices_mm, kp, gaze_target_mm=eye)
+    behind = HeadPose(pose.rotation, pose.translation_mm * np.array([1, 1, -1]))
+    with pytest.raises(GazeAugError, match="behind the camera"):
+        normalize_image(image, cam, behind, model.vertices_mm, kp)
+    with pytest.raises(GazeAugError, match="distance_mm"):
+        NormalizationSettings(distance_mm=-1)
+    with pytest.raises(GazeAugError, match="patch size"):
+        NormalizationSettings(patch_size_wh=(0, 36))
+
+
+def test_npz_round_trip_and_atomic_write(mpii, tmp_path):
+    cam, model, landmarks, image, target, raw = mpii
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam)
+    s = normalize_image(
+        image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"], gaze_target_mm=target, meta={"input": "p00"}
+    )
+    out = tmp_path / "n.npz"
+    save_npz(out, s)
+    z = load_npz(out)
+    assert z["left_eye"].shape == (36, 60, 3) and z["left_eye"].dtype == np.uint8
+    np.testing.assert_array_equal(z["right_eye"], s.right.image)
+    np.testing.assert_allclose(z["gaze_left"], s.left.gaze)
+    np.testing.assert_allclose(z["R_norm_right"], s.right.camera.rotation)
+    assert float(z["distance_mm"]) == 600 and float(z["focal_px"]) == 650
+    assert z["patch_size_wh"].tolist() == [60, 36] and str(z["source"]) == "normalize"
+    assert z["meta"] == {"input": "p00"}
+    with pytest.raises(GazeAugError, match=".npz"):
+        save_npz(tmp_path / "n.png", s)
+    assert not (tmp_path / "n.png").exists()
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(GazeAugError, match="not a readable"):
+        load_npz(tmp_path / "bad.npz")
