@@ -13,12 +13,15 @@ $(STAMP): pyproject.toml tools/bootstrap.sh
 
 setup: $(STAMP)
 
-## make demo: build the textured face mesh of the built-in sample and a preview picture
+## make demo: the pipeline on the built-in sample: mesh, normalized eyes, augmented eye patches
 demo: $(STAMP)
 	$(VENV)/bin/facemesh build -o $(OUT)/astronaut.glb --preview $(OUT)/astronaut_preview.png
 	$(VENV)/bin/facemesh info $(OUT)/astronaut.glb
 	$(VENV)/bin/facemesh render $(OUT)/astronaut.glb --yaw 25 --pitch 15 -o $(OUT)/astronaut_yaw25_pitch15.png
-	@echo "demo: wrote $(OUT)/astronaut.glb and the pictures beside it"
+	$(VENV)/bin/gazeaug normalize -o $(OUT)/astronaut_normalized.npz
+	$(VENV)/bin/gazeaug render $(OUT)/astronaut.glb --yaw 0 --pitch 30 -o $(OUT)/astronaut_yaw0_pitch30.npz
+	$(VENV)/bin/gazeaug preview $(OUT)/astronaut.glb -n 16 -o $(OUT)/astronaut_augmented.png
+	@echo "demo: wrote $(OUT)/astronaut.glb, the eye patches (.npz) and the pictures beside them"
 
 ## make test: the whole tox suite (tests on every installed Python, lint, type)
 test: $(STAMP)

@@ -37,20 +37,36 @@ def _srgb_encode(x: np.ndarray) -> np.ndarray:
 _SRGB_ENCODE = np.round(_srgb_encode(np.arange(256) / 255.0) * 255.0).clip(0, 255).astype(np.uint8)
 
 
-class FilamentFaceScene:
-    """One face loaded into an Open3D ``OffscreenRenderer`` of the patch size."""
+# Open3D cannot destroy an OffscreenRenderer and start another in one process (Filament
+# aborts), so there is one per patch size for the life of the process, shared by all
+# scenes; each scene puts its own face into it before drawing.
+_RENDERERS: dict[tuple[int, int], Any] = {}
+_CURRENT: dict[tuple[int, int], Any] = {}
 
-    def __init__(self, mesh: RenderMesh, size_wh: tuple[int, int], pixels_per_mm: float):
+
+def _offscreen_renderer(size: tuple[int, int]) -> Any:
+    r = _RENDERERS.get(size)
+    if r is None:
         o3d = import_open3d()
-        rendering = o3d.visualization.rendering
-        w, h = size_wh
         try:
-            self._renderer = rendering.OffscreenRenderer(int(w), int(h))
+            r = o3d.visualization.rendering.OffscreenRenderer(*size)
         except Exception as exc:  # noqa: BLE001 - the driver's message is the useful part
             raise GazeAugError(
                 f"Open3D's Filament renderer could not start ({exc}); it needs EGL or Vulkan "
                 "(Debian: libegl1 libgl1 libvulkan1 mesa-vulkan-drivers). Use --renderer raycast."
             ) from exc
+        _RENDERERS[size] = r
+    return r
+
+
+class FilamentFaceScene:
+    """One face for Open3D's ``OffscreenRenderer`` of the patch size (one renderer per process, shared)."""
+
+    def __init__(self, mesh: RenderMesh, size_wh: tuple[int, int], pixels_per_mm: float):
+        o3d = import_open3d()
+        rendering = o3d.visualization.rendering
+        w, h = size_wh
+        self._renderer = _offscreen_renderer((int(w), int(h)))
         self._size = (int(w), int(h))
         tm = o3d.geometry.TriangleMesh()
         tm.vertices = o3d.utility.Vector3dVector(np.asarray(mesh.vertices_mm, dtype=np.float64))
@@ -80,15 +96,24 @@ class FilamentFaceScene:
         mat.albedo_img = tex
         c = float(_srgb_encode(np.array(2.0)))
         mat.base_color = [c, c, c, 1.0]
-        scene = self._renderer.scene
-        scene.set_background([*_MARKER, 1.0])
-        scene.add_geometry("face", tm, mat)
-        scene.view.set_post_processing(False)
+        self._geometry = (tm, mat)
         self.texture_level = level
-        self._o3d = o3d
+        self._show()
+
+    def _show(self) -> None:
+        """Make this face the one the shared renderer draws."""
+        if _CURRENT.get(self._size) is self:
+            return
+        scene = self._renderer.scene
+        scene.clear_geometry()
+        scene.set_background([*_MARKER, 1.0])
+        scene.add_geometry("face", *self._geometry)
+        scene.view.set_post_processing(False)
+        _CURRENT[self._size] = self
 
     def render(self, views: Sequence[View]) -> RenderedPatches:
         """Render each view; see :class:`~gazeaug.render.base.Scene`."""
+        self._show()
         w, h = self._size
         images = np.empty((len(views), h, w, 3), dtype=np.float32)
         hit = np.ones((len(views), h, w), dtype=bool)

@@ -1,0 +1,64 @@
+"""Draw the convention figure of docs/conventions.md: ``python docs/make_figures.py`` writes docs/img/pitch_convention.png.
+
+Drawn from the conventions module itself (the face direction of a head pose
+pitch of +30 deg), not by hand, so the picture cannot disagree with the code.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from facemesh.conventions import pitchyaw_to_vector  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "img" / "pitch_convention.png"
+
+
+def main() -> None:
+    """Side view (the subject's right side; the camera frame's y down, z forward)."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for ax, title, cam_angle in (
+        (axes[0], "webcam on a screen: camera above, face pitch about -10 deg", -10.0),
+        (axes[1], "wheelchair camera: 30 deg below, face pitch +30 deg", 30.0),
+    ):
+        # world: the head at the origin looking along -x of the plot (to the left); y up in the plot
+        head = plt.Circle((0, 0), 1.0, fc="#f2d0b0", ec="k")
+        ax.add_patch(head)
+        ax.plot([-0.95], [0.25], "ko", ms=4)  # eye
+        ax.annotate("", xy=(-3.2, 0.25), xytext=(-0.95, 0.25), arrowprops={"arrowstyle": "->", "color": "tab:blue"})
+        ax.text(-3.2, 0.4, "face / gaze direction", color="tab:blue", fontsize=8)
+        # the camera sits on a ray from the eye at -cam_angle (below for +30), 3.5 units away, looking at the eye
+        a = np.radians(cam_angle)
+        cam = np.array([-0.95 - 3.5 * np.cos(a), 0.25 - 3.5 * np.sin(a)])
+        ax.plot(*cam, "s", color="tab:red", ms=10)
+        ax.annotate(
+            "", xy=(-0.95, 0.25), xytext=tuple(cam), arrowprops={"arrowstyle": "->", "color": "tab:red", "ls": "--"}
+        )
+        ax.text(cam[0] - 0.2, cam[1] - 0.45, "camera", color="tab:red", fontsize=8)
+        # the head pose the camera measures: the face direction in the camera frame
+        # camera frame (seen from the side): z toward the eye, y down; the face points along the plot's -x
+        z = np.array([np.cos(a), np.sin(a)])  # plot coordinates of the camera's z axis
+        y_down = np.array([np.sin(a), -np.cos(a)])  # perpendicular, pointing down in the plot
+        face = np.array([-1.0, 0.0])
+        v = np.array([0.0, face @ y_down, face @ z])  # (x, y, z) in the camera frame
+        pitch = np.degrees(np.arcsin(-v[1] / np.linalg.norm(v)))
+        check = pitchyaw_to_vector([np.radians(pitch), 0.0])
+        assert np.allclose(check, v / np.linalg.norm(v)), "figure disagrees with the conventions"
+        ax.set_title(f"{title}\nmeasured head pose pitch = {pitch:+.0f} deg", fontsize=9)
+        ax.set_xlim(-5, 1.5)
+        ax.set_ylim(-2.5, 2.0)
+        ax.set_aspect("equal")
+        ax.axis("off")
+    fig.suptitle("Head pose pitch > 0: the face points above the camera's line of sight (camera below the face)")
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(OUT, dpi=100, bbox_inches="tight")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
