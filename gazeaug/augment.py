@@ -33,7 +33,7 @@ from facemesh.types import FaceMesh
 
 from .camera import normalized_cameras
 from .errors import GazeAugError
-from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample
+from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample, face_labels
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 __all__ = ["FaceAsset", "face_asset", "HeadPlacement", "sampled_placement", "source_placement", "render_poses"]
@@ -199,8 +199,12 @@ def render_poses(
         if (norms < 1e-9).any():
             raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye)")
         gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))
+    face_head = model[list(kp.face_indices)].mean(axis=0)
     samples = []
     for i, place in enumerate(placements):
+        target = None if target_head is None else place.rotation @ target_head + place.translation_mm
+        vector = None if vector_head is None else place.rotation @ vector_head
+        face = face_labels(place.rotation @ face_head + place.translation_mm, place.rotation, s, target, vector)
         eyes = {
             side: EyePatch(
                 image=out.images[2 * i + j],
@@ -222,6 +226,7 @@ def render_poses(
                 head_rotation=place.rotation,
                 source=f"render:{renderer_name}",
                 meta=m,
+                face=face,
             )
         )
     return samples

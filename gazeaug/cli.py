@@ -103,6 +103,26 @@ def build_parser() -> argparse.ArgumentParser:
     _add_normalization_options(pv)
     _add_distribution_options(pv)
 
+    for name, help_ in (
+        ("augment", "augment a gaze dataset into an HDF5 training set (K renders per sample)"),
+        ("normalize-dataset", "normalize a gaze dataset into an HDF5 training set (the baseline)"),
+    ):
+        a = sub.add_parser(name, help=help_)
+        a.add_argument("dataset", type=Path, help="the dataset's root folder")
+        a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
+        a.add_argument("--format", choices=("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder"))
+        a.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+        a.add_argument("--seed", type=int, default=0)
+        a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
+        a.add_argument("--overwrite", action="store_true", help="replace an existing complete OUT.h5")
+        a.add_argument("--limit", type=int, default=None, help="only the first N samples")
+        a.add_argument("--quiet", action="store_true", help="no progress bar")
+        _add_normalization_options(a)
+        if name == "augment":
+            a.add_argument("--per-sample", type=int, default=4, help="K augmented samples per input sample (default 4)")
+            a.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
+            _add_distribution_options(a)
+
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
@@ -306,7 +326,50 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-_COMMANDS = {"normalize": _cmd_normalize, "render": _cmd_render, "preview": _cmd_preview, "bench": _cmd_bench}
+def _cmd_dataset(args: argparse.Namespace) -> int:
+    from .datasets import open_dataset
+    from .errors import GazeAugError
+    from .jobs import JobSettings, run_dataset
+    from .sampling import load_rig
+
+    if args.workers < 1:
+        raise GazeAugError(f"--workers: expected >= 1, got {args.workers}")
+    reader = open_dataset(args.dataset, args.format)
+    if args.command == "augment":
+        settings = JobSettings(
+            kind="augment",
+            per_sample=args.per_sample,
+            distribution=_distribution(args),
+            seed=args.seed,
+            renderer=args.renderer,
+            normalization=_settings(args),
+            rig=None if args.rig is None else load_rig(args.rig).as_dict(),
+        )
+    else:
+        settings = JobSettings(kind="normalize-dataset", seed=args.seed, normalization=_settings(args))
+    summary = run_dataset(
+        reader,
+        args.output,
+        settings,
+        workers=args.workers,
+        resume=args.resume,
+        overwrite=args.overwrite,
+        limit=args.limit,
+        progress=not args.quiet,
+    )
+    short = {k: summary[k] for k in ("output", "samples", "rows", "skipped", "samples_per_second")}
+    print(json.dumps(short))
+    return 0
+
+
+_COMMANDS = {
+    "augment": _cmd_dataset,
+    "normalize-dataset": _cmd_dataset,
+    "normalize": _cmd_normalize,
+    "render": _cmd_render,
+    "preview": _cmd_preview,
+    "bench": _cmd_bench,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -41,7 +41,9 @@ __all__ = [
     "EYES",
     "NormalizationSettings",
     "EyePatch",
+    "FaceLabels",
     "NormalizedSample",
+    "face_labels",
     "reference_points",
     "eye_cameras",
     "source_coordinates",
@@ -110,6 +112,24 @@ class EyePatch:
 
 
 @dataclass(frozen=True)
+class FaceLabels:
+    """Labels in the *face's* normalized frame (reference point: the face centre; no patch).
+
+    One frame for the whole face, as in Zhang's face normalization: what the
+    HDF5 training sets store as ``head_pose`` and ``gaze``.
+
+    Attributes:
+        camera: the face's normalized camera (the eye patch size; only its rotation matters here).
+        head_pose: (2,) float64 radians, (pitch, yaw).
+        gaze: (2,) float64 radians, (pitch, yaw) of ``target - face centre`` (or the gaze vector); ``None`` if unknown.
+    """
+
+    camera: NormalizedCamera
+    head_pose: NDArray[np.float64]
+    gaze: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
 class NormalizedSample:
     """Both eyes of one face, normalized (from a real image) or rendered (from a mesh).
 
@@ -121,6 +141,7 @@ class NormalizedSample:
             (or rendered) with.
         source: ``"normalize"`` or ``"render:<renderer>"``.
         meta: JSON-serialisable extras (sampled yaw and pitch, seed, input name, ...).
+        face: labels in the face-centre normalized frame.
     """
 
     left: EyePatch
@@ -129,6 +150,7 @@ class NormalizedSample:
     head_rotation: NDArray[np.float64]
     source: str
     meta: Mapping[str, Any] = field(default_factory=dict)
+    face: FaceLabels | None = None
 
     def eye(self, side: str) -> EyePatch:
         """The ``"left"`` or ``"right"`` eye."""
@@ -281,6 +303,7 @@ def normalize_image(
             head_pose=cam.head_pose_pitchyaw(pose.rotation),
             gaze=None if g is None else cam.gaze_pitchyaw(g),
         )
+    face_centre = reference_points(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints)["face"]
     return NormalizedSample(
         left=eyes["left"],
         right=eyes["right"],
@@ -288,6 +311,36 @@ def normalize_image(
         head_rotation=np.array(pose.rotation),
         source="normalize",
         meta=dict(meta or {}),
+        face=face_labels(face_centre, pose.rotation, s, gaze_target_mm, gaze_vector),
+    )
+
+
+def face_labels(
+    face_centre_mm: ArrayLike,
+    head_rotation: ArrayLike,
+    settings: NormalizationSettings,
+    gaze_target_mm: ArrayLike | None = None,
+    gaze_vector: ArrayLike | None = None,
+) -> FaceLabels:
+    """Head pose and gaze in the face centre's normalized frame.
+
+    Args:
+        face_centre_mm: (3,) float, mm, camera frame.
+        head_rotation: (3, 3) float, head frame -> camera frame.
+        settings: normalization settings.
+        gaze_target_mm: (3,) float, mm, camera frame, or None.
+        gaze_vector: (3,) float, camera frame, or None.
+    """
+    cam = normalized_cameras(
+        np.asarray(face_centre_mm, dtype=np.float64)[None],
+        np.asarray(head_rotation, dtype=np.float64)[None],
+        distance_mm=settings.distance_mm,
+        focal_px=settings.focal_px,
+        size_wh=settings.patch_size_wh,
+    )[0]
+    g = gaze_direction(cam.reference_mm, gaze_target_mm, gaze_vector)
+    return FaceLabels(
+        camera=cam, head_pose=cam.head_pose_pitchyaw(head_rotation), gaze=None if g is None else cam.gaze_pitchyaw(g)
     )
 
 
@@ -300,6 +353,7 @@ def save_npz(path: str | Path, sample_: NormalizedSample) -> None:
     ``eye_centre_right_mm`` (3,) camera frame; ``gaze_left``, ``gaze_right`` (2,)
     when a gaze is known; ``head_rotation`` (3, 3); ``distance_mm``, ``focal_px``,
     ``patch_size_wh``, ``antialias``, ``source`` (``normalize`` or ``render:<renderer>``),
+    ``head_pose_face``, ``gaze_face``, ``R_norm_face``, ``face_centre_mm`` (the face centre's normalized frame),
     ``coverage_left``, ``coverage_right``, and ``meta_json`` (a JSON string of the extras).
     """
     import json
@@ -316,6 +370,12 @@ def save_npz(path: str | Path, sample_: NormalizedSample) -> None:
         arrays[f"coverage_{side}"] = np.float64(e.coverage)
         if e.gaze is not None:
             arrays[f"gaze_{side}"] = e.gaze
+    if sample_.face is not None:
+        arrays["head_pose_face"] = sample_.face.head_pose
+        arrays["R_norm_face"] = sample_.face.camera.rotation
+        arrays["face_centre_mm"] = sample_.face.camera.reference_mm
+        if sample_.face.gaze is not None:
+            arrays["gaze_face"] = sample_.face.gaze
     s = sample_.settings
     arrays.update(
         head_rotation=sample_.head_rotation,

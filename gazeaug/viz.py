@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -63,13 +63,25 @@ def contact_sheet(samples: Sequence[NormalizedSample], columns: int = 4, scale: 
     return sheet
 
 
+def _angles(group: Sequence[NormalizedSample] | Mapping[str, NDArray[np.float64]], what: str) -> NDArray[np.float64]:
+    """(M, 2) radians (pitch, yaw) of ``what`` (``head_pose`` or ``gaze``) for a group."""
+    if isinstance(group, Mapping):
+        return np.asarray(group[what], dtype=np.float64).reshape(-1, 2)
+    vals = [getattr(s.eye(side), what) for s in group for side in ("left", "right")]
+    vals = [v for v in vals if v is not None]
+    return np.asarray(vals, dtype=np.float64).reshape(-1, 2)
+
+
 def plot_distributions(
-    groups: dict[str, Sequence[NormalizedSample]], path: str | Path, title: str = "Head pose and gaze (normalized)"
+    groups: Mapping[str, Sequence[NormalizedSample] | Mapping[str, NDArray[np.float64]]],
+    path: str | Path,
+    title: str = "Head pose and gaze (normalized)",
 ) -> None:
     """Pitch/yaw scatter plots with marginal histograms, head pose and gaze side by side, per group.
 
-    Angles are the normalized-frame (pitch, yaw) of each sample's eyes, in degrees.
-    Written atomically to ``path`` (PNG).
+    A group is a list of samples (both eyes' normalized-frame angles) or a
+    mapping ``{"head_pose": (M, 2), "gaze": (M, 2)}`` of (pitch, yaw) radians.
+    Plotted in degrees; written atomically to ``path`` (PNG).
     """
     import matplotlib
 
@@ -84,13 +96,14 @@ def plot_distributions(
         ax = fig.add_subplot(grid[1, 2 * k])
         top = fig.add_subplot(grid[0, 2 * k], sharex=ax)
         right = fig.add_subplot(grid[1, 2 * k + 1], sharey=ax)
-        for name, samples in groups.items():
-            vals = [getattr(s.eye(side), what) for s in samples for side in ("left", "right")]
-            vals = [v for v in vals if v is not None]
-            if not vals:
+        for name, group in groups.items():
+            rad = _angles(group, what)
+            if not len(rad):
                 continue
-            a = np.degrees(np.array(vals))
-            ax.scatter(a[:, 1], a[:, 0], s=8, alpha=0.6, label=f"{name} ({len(samples)})")
+            a = np.degrees(rad)
+            if len(a) > 5000:  # keep the picture light: an even subsample
+                a = a[np.linspace(0, len(a) - 1, 5000).astype(int)]
+            ax.scatter(a[:, 1], a[:, 0], s=6, alpha=0.5, label=f"{name} ({len(rad)})")
             top.hist(a[:, 1], bins=30, alpha=0.5)
             right.hist(a[:, 0], bins=30, alpha=0.5, orientation="horizontal")
         ax.set_xlabel(f"{what.replace('_', ' ')} yaw (deg)")

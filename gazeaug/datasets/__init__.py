@@ -1,0 +1,56 @@
+"""Gaze dataset readers behind one sample schema (:class:`~gazeaug.datasets.base.GazeSample`).
+
+``open_dataset(path, format=None)`` picks the reader; formats:
+
+``mpiifacegaze``
+    the raw MPIIFaceGaze release (``pXX/pXX.txt`` + ``pXX/Calibration/Camera.mat``).
+``folder``
+    your own data: images plus ``labels.csv`` or ``labels.jsonl`` (:mod:`gazeaug.datasets.folder`).
+
+ETH-XGaze, GazeCapture (with its supplementary .h5) and UTMultiview readers are
+planned; asking for them says so.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .base import DatasetError, DatasetReader, GazeSample
+from .folder import LABEL_FILES, FolderDataset
+from .mpiifacegaze import MPIIFaceGaze
+
+__all__ = ["FORMATS", "open_dataset", "detect_format", "DatasetError", "DatasetReader", "GazeSample"]
+
+#: Formats :func:`open_dataset` knows (readers in this version: mpiifacegaze, folder).
+FORMATS = ("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder")
+_PLANNED = ("ethxgaze", "gazecapture", "utmultiview")
+
+
+def detect_format(path: str | Path) -> str:
+    """Guess a dataset folder's format from its layout.
+
+    Raises:
+        DatasetError: not a folder, or no known layout.
+    """
+    p = Path(path)
+    if not p.is_dir():
+        raise DatasetError(f"{p}: not a folder (give the dataset's root folder)")
+    if any((p / n).is_file() for n in LABEL_FILES):
+        return "folder"
+    if any(d.is_dir() and (d / f"{d.name}.txt").is_file() for d in p.iterdir()):
+        return "mpiifacegaze"
+    raise DatasetError(
+        f"{p}: cannot tell the dataset format (no {' / '.join(LABEL_FILES)}, no pXX/pXX.txt); pass --format"
+    )
+
+
+def open_dataset(path: str | Path, format: str | None = None) -> DatasetReader:  # noqa: A002 - the CLI's name
+    """The reader of a dataset folder (``format`` None: auto-detected)."""
+    fmt = format or detect_format(path)
+    if fmt == "mpiifacegaze":
+        return MPIIFaceGaze(path)
+    if fmt == "folder":
+        return FolderDataset(path)
+    if fmt in _PLANNED:
+        raise DatasetError(f"the {fmt} reader is not in this version yet (readers: mpiifacegaze, folder)")
+    raise DatasetError(f"format: expected one of {FORMATS}, got {fmt!r}")

@@ -1,0 +1,116 @@
+"""One sample schema for every gaze dataset, and the errors readers raise.
+
+Readers (:mod:`gazeaug.datasets`) turn a dataset on disk into
+:class:`GazeSample` s; the augmenter, the normalizer and the evaluator only
+ever see those, never the dataset's own format.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from facemesh.types import CameraIntrinsics
+
+from ..errors import GazeAugError
+
+__all__ = ["GazeSample", "DatasetReader", "DatasetError"]
+
+
+class DatasetError(GazeAugError):
+    """A dataset file is missing, malformed or inconsistent (the message names the file and line)."""
+
+
+@dataclass(frozen=True)
+class GazeSample:
+    """One labelled image of a gaze dataset.
+
+    Attributes:
+        image_path: the image file.
+        camera: the camera that took it (intrinsics and distortion).
+        subject: subject identifier (``"p00"``, ...).
+        source_index: position of the sample in its dataset (stable across runs; the key
+            for resuming and for per-sample random seeds).
+        gaze_target_mm: (3,) float64, mm, camera frame: the 3D point looked at; or ``None``.
+        gaze_vector: (3,) float64 unit vector, camera frame, when the dataset gives a
+            direction instead of a target; ``None`` otherwise.
+        gaze_origin_mm: (3,) float64, mm, camera frame: where the dataset's gaze direction
+            starts (its face centre), when it says; ``None`` otherwise.
+        head_rotation: (3, 3) float64 head -> camera rotation from the dataset, or ``None``.
+        head_translation_mm: (3,) float64, mm, from the dataset, or ``None``.
+        landmarks_px: (L, 2) float64, pixels, image frame: the dataset's own landmarks, or ``None``.
+        face_model_mm: (L, 3) float64, mm, head frame: the 3D model of those landmarks, or ``None``.
+        extras: anything else the reader wants to keep (JSON-serialisable).
+    """
+
+    image_path: Path
+    camera: CameraIntrinsics
+    subject: str
+    source_index: int
+    gaze_target_mm: NDArray[np.float64] | None = None
+    gaze_vector: NDArray[np.float64] | None = None
+    gaze_origin_mm: NDArray[np.float64] | None = None
+    head_rotation: NDArray[np.float64] | None = None
+    head_translation_mm: NDArray[np.float64] | None = None
+    landmarks_px: NDArray[np.float64] | None = None
+    face_model_mm: NDArray[np.float64] | None = None
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "image_path", Path(self.image_path))
+        for name, shape in (
+            ("gaze_target_mm", (3,)),
+            ("gaze_vector", (3,)),
+            ("gaze_origin_mm", (3,)),
+            ("head_rotation", (3, 3)),
+            ("head_translation_mm", (3,)),
+        ):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            a = np.array(v, dtype=np.float64)
+            if a.shape != shape or not np.isfinite(a).all():
+                raise DatasetError(
+                    f"sample {self.source_index} ({self.image_path}): {name}: expected finite {shape}, got {a.tolist()}"
+                )
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        if self.gaze_target_mm is None and self.gaze_vector is None:
+            raise DatasetError(f"sample {self.source_index} ({self.image_path}): no gaze target or gaze vector")
+        if self.gaze_vector is not None:
+            n = float(np.linalg.norm(self.gaze_vector))
+            if n < 1e-9:
+                raise DatasetError(f"sample {self.source_index} ({self.image_path}): zero gaze vector")
+            g = np.asarray(self.gaze_vector) / n
+            g.setflags(write=False)
+            object.__setattr__(self, "gaze_vector", g)
+        for name, cols in (("landmarks_px", 2), ("face_model_mm", 3)):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            a = np.array(v, dtype=np.float64)
+            if a.ndim != 2 or a.shape[1] != cols or not np.isfinite(a).all():
+                raise DatasetError(
+                    f"sample {self.source_index} ({self.image_path}): {name}: expected finite (L, {cols})"
+                )
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+
+class DatasetReader(Protocol):
+    """A dataset on disk: a name, a length and its samples in a stable order."""
+
+    name: str
+
+    def __len__(self) -> int:
+        """Number of samples."""
+        ...
+
+    def __iter__(self) -> Iterator[GazeSample]:
+        """The samples, ``source_index`` 0, 1, 2, ..."""
+        ...

@@ -1,0 +1,304 @@
+"""HDF5 training sets: the schema, a streaming writer that can resume, and a reader.
+
+Schema (one row per normalized or augmented sample; ETH-XGaze's ``.h5`` is
+the field's convention, this extends it with both eyes):
+
+========================  ===================  ==================================================
+key                       shape, dtype         meaning
+========================  ===================  ==================================================
+``left_eye``              (N, H, W, 3) uint8   the subject's left eye (image right), RGB
+``right_eye``             (N, H, W, 3) uint8   the subject's right eye, RGB
+``head_pose``             (N, 2) float32       (pitch, yaw) rad, face-centre normalized frame
+``gaze``                  (N, 2) float32       (pitch, yaw) rad, face-centre normalized frame
+``head_pose_vector``      (N, 3) float32       the same as unit vectors (MPIIGaze convention)
+``gaze_vector``           (N, 3) float32
+``head_pose_left/right``  (N, 2) float32       (pitch, yaw) rad in each eye's normalized frame
+``gaze_left/right``       (N, 2) float32
+``R_norm_left/right``     (N, 3, 3) float32    each eye's normalizing rotation
+``R_norm_face``           (N, 3, 3) float32    the face's normalizing rotation
+``subject``               (N,) bytes           subject id
+``source_index``          (N,) int64           the sample's index in its dataset
+``sampled_yaw_pitch``     (N, 2) float32       the drawn (yaw, pitch) in degrees (NaN: not augmented)
+``sources/index``         (M,) int64           every input sample that produced rows
+``sources/labels``        (M, 2, 2) float32    its original (head pose, gaze) (pitch, yaw) rad, face frame
+========================  ===================  ==================================================
+
+File attributes: ``gazeaug_version``, ``kind`` (``augment`` or
+``normalize-dataset``), ``dataset``, ``dataset_format``, ``settings`` (JSON of
+every parameter: normalization, distribution, K, seed, renderer), ``complete``
+(True only once the run finished), ``rows_done`` and ``next_source_index``.
+
+Chunked (64 rows) and gzip-compressed. While a run is going, the file is
+``OUT.h5.part``; it is renamed to ``OUT.h5`` only when complete, so a killed
+run never leaves a file that looks complete. ``--resume`` reopens the
+``.part`` file, drops rows past the last flush and continues after
+``next_source_index``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from facemesh.conventions import pitchyaw_to_vector
+
+from .errors import GazeAugError
+from .normalize import NormalizedSample
+
+__all__ = ["H5Writer", "rows_from_samples", "part_path", "read_h5", "REQUIRED_KEYS"]
+
+REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
+_CHUNK = 64
+
+
+def part_path(path: str | Path) -> Path:
+    """The in-progress name of an output: ``OUT.h5.part``."""
+    p = Path(path)
+    return p.with_name(p.name + ".part")
+
+
+@dataclass(frozen=True)
+class Rows:
+    """A block of rows to append (arrays with the schema's shapes, length n)."""
+
+    arrays: Mapping[str, NDArray[Any]]
+
+    def __len__(self) -> int:
+        return len(self.arrays["left_eye"])
+
+
+def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_index: int) -> Rows:
+    """Schema rows for the samples of one source image (each must have a gaze and face labels)."""
+    if not samples:
+        raise GazeAugError("no samples to write")
+    out: dict[str, list[Any]] = {k: [] for k in _DTYPES}
+    for s in samples:
+        if s.face is None or s.face.gaze is None or s.left.gaze is None or s.right.gaze is None:
+            raise GazeAugError("training rows need a gaze label")
+        out["left_eye"].append(s.left.image)
+        out["right_eye"].append(s.right.image)
+        out["head_pose"].append(s.face.head_pose)
+        out["gaze"].append(s.face.gaze)
+        out["head_pose_vector"].append(pitchyaw_to_vector(s.face.head_pose))
+        out["gaze_vector"].append(pitchyaw_to_vector(s.face.gaze))
+        for side in ("left", "right"):
+            e = s.eye(side)
+            out[f"head_pose_{side}"].append(e.head_pose)
+            out[f"gaze_{side}"].append(e.gaze)
+            out[f"R_norm_{side}"].append(e.camera.rotation)
+        out["R_norm_face"].append(s.face.camera.rotation)
+        out["subject"].append(subject.encode("utf-8"))
+        out["source_index"].append(source_index)
+        yp = s.meta.get("yaw_pitch_deg")
+        out["sampled_yaw_pitch"].append(yp if yp is not None else [np.nan, np.nan])
+    return Rows({k: np.asarray(v, dtype=_DTYPES[k]) for k, v in out.items()})
+
+
+_DTYPES: dict[str, Any] = {
+    "left_eye": np.uint8,
+    "right_eye": np.uint8,
+    "head_pose": np.float32,
+    "gaze": np.float32,
+    "head_pose_vector": np.float32,
+    "gaze_vector": np.float32,
+    "head_pose_left": np.float32,
+    "head_pose_right": np.float32,
+    "gaze_left": np.float32,
+    "gaze_right": np.float32,
+    "R_norm_left": np.float32,
+    "R_norm_right": np.float32,
+    "R_norm_face": np.float32,
+    "subject": "S32",
+    "source_index": np.int64,
+    "sampled_yaw_pitch": np.float32,
+}
+
+
+def _import_h5py() -> Any:
+    try:
+        import h5py  # noqa: PLC0415
+    except ImportError as exc:
+        raise ImportError(f"HDF5 output needs h5py: pip install h5py ({exc})") from exc
+    return h5py
+
+
+class H5Writer:
+    """Append rows to ``OUT.h5.part``; :meth:`finish` marks it complete and renames it to ``OUT.h5``.
+
+    Args:
+        path: the final output (``.h5``).
+        attrs: file attributes (JSON-serialisable values; ``settings`` should hold every parameter).
+        patch_size_wh: eye patch (width, height).
+        resume: continue an interrupted run's ``.part`` file (whose ``settings`` must match).
+        overwrite: replace an existing complete output.
+
+    Raises:
+        GazeAugError: the output exists (without ``overwrite``), a ``.part`` exists without
+            ``resume``, or the ``.part`` file was written with other settings.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        attrs: Mapping[str, Any],
+        patch_size_wh: tuple[int, int],
+        *,
+        resume: bool = False,
+        overwrite: bool = False,
+    ):
+        h5py = _import_h5py()
+        self.path = Path(path)
+        if self.path.suffix not in (".h5", ".hdf5"):
+            raise GazeAugError(f"{self.path}: the output must end in .h5")
+        self.part = part_path(self.path)
+        if self.path.exists() and not overwrite:
+            raise GazeAugError(f"{self.path} exists and is complete; pass --overwrite to replace it")
+        settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
+        self.skipped: list[dict[str, Any]] = []
+        self.next_source_index = 0
+        if self.part.exists() and resume:
+            try:
+                self._f = h5py.File(self.part, "a")
+            except OSError as exc:
+                raise GazeAugError(
+                    f"{self.part}: cannot reopen the interrupted run ({exc}); delete it to start over"
+                ) from exc
+            old = self._f.attrs.get("settings", "{}")
+            if old != settings:
+                self._f.close()
+                raise GazeAugError(f"{self.part} was written with other settings; delete it or use the same options")
+            done = int(self._f.attrs.get("rows_done", 0))
+            for k in _DTYPES:
+                self._f[k].resize(done, axis=0)
+            sources = int(self._f.attrs.get("sources_done", 0))
+            for k in ("sources/index", "sources/labels"):
+                self._f[k].resize(sources, axis=0)
+            self.next_source_index = int(self._f.attrs.get("next_source_index", 0))
+            self.skipped = json.loads(self._f.attrs.get("skipped", "[]"))
+        else:
+            if self.part.exists():
+                raise GazeAugError(
+                    f"{self.part}: an interrupted run is there; pass --resume to continue it or delete it"
+                )
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._f = h5py.File(self.part, "w")
+            w, h = patch_size_wh
+            shapes = {
+                "left_eye": (h, w, 3),
+                "right_eye": (h, w, 3),
+                "R_norm_left": (3, 3),
+                "R_norm_right": (3, 3),
+                "R_norm_face": (3, 3),
+                "head_pose_vector": (3,),
+                "gaze_vector": (3,),
+                "subject": (),
+                "source_index": (),
+            }
+            for k, dt in _DTYPES.items():
+                tail = shapes.get(k, (2,))
+                self._f.create_dataset(
+                    k,
+                    shape=(0, *tail),
+                    maxshape=(None, *tail),
+                    dtype=dt,
+                    chunks=(_CHUNK, *tail),
+                    compression="gzip",
+                    compression_opts=1,
+                    shuffle=k not in ("left_eye", "right_eye"),
+                )
+            # per input sample (not per row): its index and its original (head pose, gaze), for the summary
+            g = self._f.create_group("sources")
+            g.create_dataset("index", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(1024,))
+            g.create_dataset("labels", shape=(0, 2, 2), maxshape=(None, 2, 2), dtype=np.float32, chunks=(1024, 2, 2))
+            for k, v in attrs.items():
+                self._f.attrs[k] = json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else v
+            self._f.attrs["sources_done"] = 0
+            self._f.attrs["complete"] = False
+            self._f.attrs["rows_done"] = 0
+            self._f.attrs["next_source_index"] = 0
+            self._f.attrs["skipped"] = "[]"
+            self._f.flush()
+
+    @property
+    def rows_done(self) -> int:
+        """Rows written so far."""
+        return int(self._f["left_eye"].shape[0])
+
+    def append(self, rows: Rows | None, source_index: int, skipped: Mapping[str, Any] | None = None) -> None:
+        """Append the rows of one source sample (or record it as skipped) and advance the resume point."""
+        if rows is not None and len(rows):
+            n0 = self.rows_done
+            n1 = n0 + len(rows)
+            for k, dt in _DTYPES.items():
+                ds = self._f[k]
+                ds.resize(n1, axis=0)
+                ds[n0:n1] = np.asarray(rows.arrays[k], dtype=dt)
+        if skipped is not None:
+            self.skipped.append(dict(skipped))
+        self.next_source_index = source_index + 1
+
+    def append_source(self, source_index: int, labels: NDArray[np.float64]) -> None:
+        """Record one input sample's original labels: (2, 2) radians, rows (head pose, gaze), columns (pitch, yaw)."""
+        n = self._f["sources/index"].shape[0]
+        for k, v in (("sources/index", source_index), ("sources/labels", labels)):
+            self._f[k].resize(n + 1, axis=0)
+            self._f[k][n] = v
+
+    def flush(self) -> None:
+        """Make what was appended durable: the resume point moves only here."""
+        self._f.attrs["sources_done"] = int(self._f["sources/index"].shape[0])
+        self._f.attrs["rows_done"] = self.rows_done
+        self._f.attrs["next_source_index"] = self.next_source_index
+        self._f.attrs["skipped"] = json.dumps(self.skipped)
+        self._f.flush()
+
+    def finish(self) -> None:
+        """Mark complete, close and rename ``.part`` to the final name."""
+        import os
+
+        self._f.attrs["complete"] = True
+        self.flush()
+        self._f.close()
+        os.replace(self.part, self.path)
+
+    def close(self) -> None:
+        """Close without finishing (the ``.part`` file stays for ``--resume``)."""
+        if self._f.id.valid:
+            self.flush()
+            self._f.close()
+
+
+def read_h5(path: str | Path, keys: Sequence[str] | None = None) -> dict[str, Any]:
+    """Read a training set (all of it, or ``keys``) with its attributes; checks the schema.
+
+    Raises:
+        GazeAugError: not HDF5, incomplete (no ``complete`` mark), missing keys or inconsistent lengths.
+    """
+    h5py = _import_h5py()
+    p = Path(path)
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        raise GazeAugError(f"{p}: not a readable HDF5 file ({exc})") from exc
+    with f:
+        missing = [k for k in REQUIRED_KEYS if k not in f]
+        if missing:
+            raise GazeAugError(f"{p}: missing keys {missing}")
+        if not bool(f.attrs.get("complete", False)):
+            raise GazeAugError(f"{p}: the run that wrote it did not finish (no 'complete' mark)")
+        n = f["left_eye"].shape[0]
+        out: dict[str, Any] = {}
+        for k in keys or [k for k in f.keys() if k != "sources"]:
+            if k not in f:
+                raise GazeAugError(f"{p}: missing key {k!r}")
+            if f[k].shape[0] != n:
+                raise GazeAugError(f"{p}: {k!r} has {f[k].shape[0]} rows, left_eye {n}")
+            out[k] = f[k][()]
+        out["attrs"] = {k: (json.loads(v) if isinstance(v, str) and v[:1] in "[{" else v) for k, v in f.attrs.items()}
+    return out

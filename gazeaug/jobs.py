@@ -1,0 +1,323 @@
+"""Dataset runs: ``augment`` (K renders per sample at drawn head poses) and ``normalize-dataset`` (the baseline).
+
+Every input sample goes through the same stages: read the image, detect the
+landmarks (MediaPipe), solve the pose; then either normalize the real image
+(``normalize-dataset``) or build the face mesh and render its eyes at K head
+poses drawn from the distribution (``augment``). Rows go to an HDF5 file
+(:mod:`gazeaug.io_h5`) in dataset order, whatever the number of workers.
+
+Determinism: sample i draws its poses from ``numpy.random.default_rng([seed, i])``,
+so the output does not depend on ``--workers`` or on resuming.
+
+Samples whose face is not found, or whose pose fails, are skipped, counted and
+listed in the summary (never fatal). Dataset errors (bad files, missing
+columns, wrong calibration) stop the run with a message naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import __version__
+from .datasets.base import DatasetError, DatasetReader, GazeSample
+from .errors import GazeAugError
+from .io_h5 import H5Writer, Rows, rows_from_samples
+from .normalize import NormalizationSettings, face_labels, normalize_image, reference_points
+from .sampling import HeadPoseDistribution
+
+__all__ = ["JobSettings", "run_dataset", "process_sample", "SampleOutcome"]
+
+KINDS = ("augment", "normalize-dataset")
+
+
+@dataclass(frozen=True)
+class JobSettings:
+    """What a dataset run does (all recorded in the output's ``settings`` attribute).
+
+    Attributes:
+        kind: ``"augment"`` or ``"normalize-dataset"``.
+        per_sample: K, augmented samples per input sample (``augment`` only; default 4).
+        distribution: the head-pose distribution (default: the paper's).
+        seed: base seed (default 0).
+        renderer: ``"raycast"`` (default) or ``"filament"``.
+        normalization: the normalized camera and patch.
+        rig: the rig description the distribution came from, if any (recorded only).
+    """
+
+    kind: str = "augment"
+    per_sample: int = 4
+    distribution: HeadPoseDistribution = field(default_factory=HeadPoseDistribution)
+    seed: int = 0
+    renderer: str = "raycast"
+    normalization: NormalizationSettings = field(default_factory=NormalizationSettings)
+    rig: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise GazeAugError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if self.kind == "augment" and not (isinstance(self.per_sample, int) and self.per_sample >= 1):
+            raise GazeAugError(f"--per-sample: expected an integer >= 1, got {self.per_sample!r}")
+        if self.renderer not in ("raycast", "filament"):
+            raise GazeAugError(f"renderer: expected 'raycast' or 'filament', got {self.renderer!r}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-serialisable form."""
+        d: dict[str, Any] = {"kind": self.kind, "normalization": self.normalization.as_dict(), "seed": self.seed}
+        if self.kind == "augment":
+            d.update(per_sample=self.per_sample, distribution=self.distribution.as_dict(), renderer=self.renderer)
+            if self.rig is not None:
+                d["rig"] = self.rig
+        return d
+
+
+@dataclass(frozen=True)
+class SampleOutcome:
+    """What processing one input sample gave.
+
+    Attributes:
+        source_index: the sample's index.
+        rows: the rows to write, or None when skipped.
+        skipped: ``{"source_index", "image", "reason"}`` when skipped.
+        before: (2, 2) float64 radians: the source image's (head pose, gaze) in its face frame, or None.
+    """
+
+    source_index: int
+    rows: Rows | None
+    skipped: dict[str, Any] | None = None
+    before: NDArray[np.float64] | None = None
+
+
+_STATE: dict[str, Any] = {}
+
+
+def _worker_init(settings: JobSettings) -> None:
+    """Per-process state: one landmark detector and one renderer, reused for every sample."""
+    from .pipeline import landmark_model_for
+
+    _STATE["settings"] = settings
+    _STATE["detector"] = landmark_model_for(None, None)
+    if settings.kind == "augment":
+        from .render import create_renderer
+
+        _STATE["renderer"] = create_renderer(settings.renderer, settings=settings.normalization)
+
+
+def process_sample(sample: GazeSample) -> SampleOutcome:
+    """Process one sample with the worker's state (see :func:`_worker_init`)."""
+    from facemesh.io import load_image_rgb
+    from facemesh.pose import PoseError
+    from facemesh.types import InputError, NoFaceError
+
+    from .augment import face_asset, render_poses, sampled_placement
+    from .pipeline import fit_face, mesh_for_fit
+
+    s: JobSettings = _STATE["settings"]
+    idx = sample.source_index
+
+    def skip(reason: str) -> SampleOutcome:
+        return SampleOutcome(idx, None, {"source_index": idx, "image": str(sample.image_path), "reason": reason})
+
+    try:
+        image = load_image_rgb(sample.image_path)
+    except InputError as exc:
+        return skip(f"unreadable image: {exc}")
+    h, w = image.shape[:2]
+    if sample.camera.image_size != (w, h):
+        raise DatasetError(
+            f"{sample.image_path}: the image is {w}x{h} but its calibration ({sample.camera.source}) "
+            f"is for {sample.camera.image_size[0]}x{sample.camera.image_size[1]}"
+        )
+    try:
+        fit = fit_face(image, sample.camera, _STATE["detector"], source=str(sample.image_path))
+    except NoFaceError as exc:
+        return skip(f"no face: {exc}")
+    except (PoseError, GazeAugError, InputError) as exc:
+        return skip(f"pose failed: {exc}")
+    target, vector = sample.gaze_target_mm, sample.gaze_vector
+    try:
+        centre = reference_points(fit.pose.rotation, fit.pose.translation_mm, fit.model.vertices_mm, fit.keypoints)
+        before = face_labels(centre["face"], fit.pose.rotation, s.normalization, target, vector)
+        if s.kind == "normalize-dataset":
+            samples = [
+                normalize_image(
+                    image,
+                    fit.camera,
+                    fit.pose,
+                    fit.model.vertices_mm,
+                    fit.keypoints,
+                    gaze_target_mm=target,
+                    gaze_vector=vector,
+                    settings=s.normalization,
+                )
+            ]
+        else:
+            asset = face_asset(mesh_for_fit(fit))
+            scene = _STATE["renderer"].scene(asset.render_mesh)
+            yp = s.distribution.sample(s.per_sample, np.random.default_rng([s.seed, idx]))
+            places = [sampled_placement(asset, y, p) for y, p in yp]
+            samples = render_poses(
+                scene,
+                asset,
+                places,
+                gaze_target_mm=target,
+                gaze_vector=vector,
+                settings=s.normalization,
+                renderer_name=s.renderer,
+            )
+    except (PoseError, GazeAugError, InputError) as exc:
+        return skip(f"failed: {exc}")
+    assert before.gaze is not None
+    return SampleOutcome(
+        idx, rows_from_samples(samples, sample.subject, idx), None, np.stack([before.head_pose, before.gaze])
+    )
+
+
+def _outcomes(samples: Iterator[GazeSample], settings: JobSettings, workers: int) -> Iterator[SampleOutcome]:
+    if workers <= 1:
+        _worker_init(settings)
+        for s in samples:
+            yield process_sample(s)
+        return
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_worker_init, initargs=(settings,)) as pool:
+        yield from pool.imap(process_sample, samples, chunksize=1)
+
+
+def _stats(angles_rad: NDArray[np.float64]) -> dict[str, Any]:
+    if len(angles_rad) == 0:
+        return {"count": 0}
+    d = np.degrees(angles_rad)
+    edges = np.arange(-90, 91, 5)
+    return {
+        "count": int(len(d)),
+        "mean_deg": np.round(d.mean(axis=0), 3).tolist(),
+        "std_deg": np.round(d.std(axis=0), 3).tolist(),
+        "hist_edges_deg": edges.tolist(),
+        "hist_pitch": np.histogram(d[:, 0], edges)[0].tolist(),
+        "hist_yaw": np.histogram(d[:, 1], edges)[0].tolist(),
+    }
+
+
+def run_dataset(
+    reader: DatasetReader,
+    output: str | Path,
+    settings: JobSettings,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    overwrite: bool = False,
+    limit: int | None = None,
+    progress: bool = True,
+    flush_every: int = 16,
+) -> dict[str, Any]:
+    """Run ``augment`` or ``normalize-dataset`` over a dataset into ``output`` (.h5).
+
+    Writes ``output`` (renamed from ``output.part`` when done), ``output`` with
+    ``.summary.json`` and ``.distribution.png`` suffixes beside it.
+
+    Returns:
+        The summary (also written as JSON).
+
+    Raises:
+        DatasetError: bad dataset files; GazeAugError: bad settings or output state.
+    """
+    out = Path(output)
+    attrs = {
+        "gazeaug_version": __version__,
+        "kind": settings.kind,
+        "dataset": str(getattr(reader, "root", "")),
+        "dataset_format": reader.name,
+        "settings": settings.as_dict(),
+    }
+    writer = H5Writer(out, attrs, settings.normalization.patch_size_wh, resume=resume, overwrite=overwrite)
+    start = writer.next_source_index
+    total = len(reader) if limit is None else min(len(reader), int(limit))
+    todo = (s for s in reader if start <= s.source_index < total)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, initial=start, unit="sample", desc=settings.kind, dynamic_ncols=True)
+    t0 = time.perf_counter()
+    processed = 0
+    try:
+        for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
+            writer.append(outcome.rows, outcome.source_index, outcome.skipped)
+            if outcome.before is not None:
+                writer.append_source(outcome.source_index, outcome.before)
+            processed += 1
+            if bar is not None:
+                bar.update(1)
+            if n % flush_every == 0:
+                writer.flush()
+    except BaseException:
+        writer.close()
+        if bar is not None:
+            bar.close()
+        raise
+    if bar is not None:
+        bar.close()
+    seconds = time.perf_counter() - t0
+    writer.finish()
+    return _summarise(out, reader, settings, writer, processed, seconds, total)
+
+
+def _summarise(
+    out: Path,
+    reader: DatasetReader,
+    settings: JobSettings,
+    writer: H5Writer,
+    processed: int,
+    seconds: float,
+    total: int,
+) -> dict[str, Any]:
+    import h5py
+
+    from facemesh.io import atomic_write
+
+    from .viz import plot_distributions
+
+    with h5py.File(out, "r") as f:
+        after = np.stack([f["head_pose"][()], f["gaze"][()]], axis=1).astype(np.float64)
+        before = f["sources/labels"][()].astype(np.float64)
+        rows = int(f["left_eye"].shape[0])
+    summary = {
+        "output": str(out),
+        "kind": settings.kind,
+        "dataset": str(getattr(reader, "root", "")),
+        "dataset_format": reader.name,
+        "samples": total,
+        "processed_this_run": processed,
+        "seconds_this_run": round(seconds, 3),
+        "samples_per_second": round(processed / seconds, 3) if seconds > 0 else None,
+        "rows": rows,
+        "skipped": len(writer.skipped),
+        "skipped_samples": writer.skipped,
+        "distributions": {
+            "before": {"head_pose": _stats(before[:, 0]), "gaze": _stats(before[:, 1])},
+            "after": {"head_pose": _stats(after[:, 0]), "gaze": _stats(after[:, 1])},
+        },
+        "settings": settings.as_dict(),
+        "gazeaug_version": __version__,
+    }
+    with atomic_write(out.with_suffix(".summary.json")) as fh:
+        fh.write(json.dumps(summary, indent=1).encode("utf-8"))
+    plot_distributions(
+        {
+            "dataset": {"head_pose": before[:, 0], "gaze": before[:, 1]},
+            settings.kind: {"head_pose": after[:, 0], "gaze": after[:, 1]},
+        },
+        out.with_suffix(".distribution.png"),
+        title=f"{reader.name}: head pose and gaze (face-normalized), before and after",
+    )
+    return summary
