@@ -139,8 +139,8 @@ class FolderDataset:
         dist = [self._float(row, k, where, 0.0) for k in _DISTORTION]
         try:
             return CameraIntrinsics(
-                matrix=[[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
-                distortion=dist,
+                matrix=np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64),
+                distortion=np.array(dist, dtype=np.float64),
                 image_size=size,
                 source=str(self.label_file),
             )
