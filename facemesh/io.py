@@ -90,9 +90,9 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     if img is None:
         raise InputError(f"{p}: not an image OpenCV can read (or the file is damaged)")
     if img.ndim == 3 and img.shape[2] == 3:
-        img = img[..., ::-1]
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)  # a contiguous copy, much faster than img[..., ::-1]
     elif img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., [2, 1, 0, 3]]
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
     return to_rgb_uint8(img, name=str(p))
 
 

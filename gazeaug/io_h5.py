@@ -161,6 +161,8 @@ class H5Writer:
             raise GazeAugError(f"{self.path} exists and is complete; pass --overwrite to replace it")
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
         self.skipped: list[dict[str, Any]] = []
+        self._pending: list[Rows] = []
+        self._pending_sources: list[tuple[int, NDArray[np.float32]]] = []
         self.next_source_index = 0
         if self.part.exists() and resume:
             try:
@@ -227,31 +229,45 @@ class H5Writer:
 
     @property
     def rows_done(self) -> int:
-        """Rows written so far."""
-        return int(self._f["left_eye"].shape[0])
+        """Rows written so far (buffered rows included)."""
+        return int(self._f["left_eye"].shape[0]) + sum(len(r) for r in self._pending)
 
     def append(self, rows: Rows | None, source_index: int, skipped: Mapping[str, Any] | None = None) -> None:
-        """Append the rows of one source sample (or record it as skipped) and advance the resume point."""
+        """Append the rows of one source sample (or record it as skipped) and advance the resume point.
+
+        Rows are buffered in memory and written by :meth:`flush` (a few samples' worth).
+        """
         if rows is not None and len(rows):
-            n0 = self.rows_done
-            n1 = n0 + len(rows)
-            for k, dt in _DTYPES.items():
-                ds = self._f[k]
-                ds.resize(n1, axis=0)
-                ds[n0:n1] = np.asarray(rows.arrays[k], dtype=dt)
+            self._pending.append(rows)
         if skipped is not None:
             self.skipped.append(dict(skipped))
         self.next_source_index = source_index + 1
 
     def append_source(self, source_index: int, labels: NDArray[np.float64]) -> None:
         """Record one input sample's original labels: (2, 2) radians, rows (head pose, gaze), columns (pitch, yaw)."""
-        n = self._f["sources/index"].shape[0]
-        for k, v in (("sources/index", source_index), ("sources/labels", labels)):
-            self._f[k].resize(n + 1, axis=0)
-            self._f[k][n] = v
+        self._pending_sources.append((source_index, np.asarray(labels, dtype=np.float32)))
+
+    def _write_pending(self) -> None:
+        if self._pending:
+            n0 = int(self._f["left_eye"].shape[0])
+            n1 = n0 + sum(len(r) for r in self._pending)
+            for k, dt in _DTYPES.items():
+                ds = self._f[k]
+                ds.resize(n1, axis=0)
+                ds[n0:n1] = np.concatenate([np.asarray(r.arrays[k], dtype=dt) for r in self._pending])
+            self._pending = []
+        if self._pending_sources:
+            n0 = int(self._f["sources/index"].shape[0])
+            n1 = n0 + len(self._pending_sources)
+            self._f["sources/index"].resize(n1, axis=0)
+            self._f["sources/index"][n0:n1] = [i for i, _ in self._pending_sources]
+            self._f["sources/labels"].resize(n1, axis=0)
+            self._f["sources/labels"][n0:n1] = np.stack([lab for _, lab in self._pending_sources])
+            self._pending_sources = []
 
     def flush(self) -> None:
-        """Make what was appended durable: the resume point moves only here."""
+        """Write the buffered rows and make them durable: the resume point moves only here."""
+        self._write_pending()
         self._f.attrs["sources_done"] = int(self._f["sources/index"].shape[0])
         self._f.attrs["rows_done"] = self.rows_done
         self._f.attrs["next_source_index"] = self.next_source_index

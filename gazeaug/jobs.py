@@ -249,9 +249,12 @@ def run_dataset(
 
         bar = tqdm(total=total, initial=start, unit="sample", desc=settings.kind, dynamic_ncols=True)
     t0 = time.perf_counter()
+    t_first = None
     processed = 0
     try:
         for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
+            if t_first is None:
+                t_first = time.perf_counter()
             writer.append(outcome.rows, outcome.source_index, outcome.skipped)
             if outcome.before is not None:
                 writer.append_source(outcome.source_index, outcome.before)
@@ -267,9 +270,11 @@ def run_dataset(
         raise
     if bar is not None:
         bar.close()
-    seconds = time.perf_counter() - t0
+    t_end = time.perf_counter()
+    seconds = t_end - t0
+    steady = (processed - 1) / (t_end - t_first) if t_first is not None and processed > 1 and t_end > t_first else None
     writer.finish()
-    return _summarise(out, reader, settings, writer, processed, seconds, total)
+    return _summarise(out, reader, settings, writer, processed, seconds, total, steady)
 
 
 def _summarise(
@@ -280,6 +285,7 @@ def _summarise(
     processed: int,
     seconds: float,
     total: int,
+    steady: float | None,
 ) -> dict[str, Any]:
     import h5py
 
@@ -300,6 +306,8 @@ def _summarise(
         "processed_this_run": processed,
         "seconds_this_run": round(seconds, 3),
         "samples_per_second": round(processed / seconds, 3) if seconds > 0 else None,
+        # after the first result: excludes starting the workers and loading the models
+        "steady_samples_per_second": None if steady is None else round(steady, 3),
         "rows": rows,
         "skipped": len(writer.skipped),
         "skipped_samples": writer.skipped,

@@ -101,4 +101,4 @@ def test_bad_input_exits_2_and_writes_nothing(glb, tmp_path, capsys, args, messa
     assert main(filled) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
-    assert not list(tmp_path.glob("*.tmp*"))
+    assert not list(tmp_path.glob(".*.part")) and not list(tmp_path.glob("*.part"))

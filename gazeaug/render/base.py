@@ -16,6 +16,7 @@ pixel still uncovered is inpainted from its neighbours (:func:`fill_misses`).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -151,6 +152,16 @@ def fill_misses(images: NDArray[np.float32], hit: NDArray[np.bool_]) -> NDArray[
     return out
 
 
+@functools.lru_cache(maxsize=8)
+def _boundary_loops(triangles_bytes: bytes) -> list[list[int]]:
+    """Boundary loops of a triangulation (cached: every MediaPipe mesh shares one), [] if not simple loops."""
+    tri = np.frombuffer(triangles_bytes, dtype=np.int64).reshape(-1, 3)
+    try:
+        return boundary_loops(tri)
+    except ValueError:
+        return []
+
+
 def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUND_RINGS) -> RenderMesh:
     """The face mesh plus background rings around its outer contour (see the module docstring).
 
@@ -161,10 +172,7 @@ def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUN
     tri = np.asarray(mesh.triangles, dtype=np.int64)
     uv = np.asarray(mesh.uv, dtype=np.float64)
     n = len(v)
-    try:
-        loops = boundary_loops(tri)
-    except ValueError:
-        loops = []
+    loops = _boundary_loops(tri.tobytes())
     texels = float(np.mean(mesh.camera.focal_px) / np.linalg.norm(mesh.pose.translation_mm))
     if not loops or not rings:
         return RenderMesh(v, tri, uv, np.asarray(mesh.texture), n, texels)

@@ -1,0 +1,268 @@
+"""Dataset readers on miniature fixtures in each exact format, and the augment / normalize-dataset runs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from facemesh.camera import load_camera
+from gazeaug.cli import main
+from gazeaug.datasets import DatasetError, detect_format, open_dataset
+from gazeaug.datasets.folder import FolderDataset
+from gazeaug.datasets.mpiifacegaze import MPIIFaceGaze
+from gazeaug.errors import GazeAugError
+from gazeaug.io_h5 import part_path, read_h5
+from gazeaug.jobs import JobSettings, run_dataset
+
+
+def _mpii_line(image, lm, rvec, tvec, fc, gt):
+    vals = [image, "1200", "300"] + [f"{v:.1f}" for v in lm.ravel()] + [f"{v:.6f}" for v in (*rvec, *tvec, *fc, *gt)]
+    return " ".join(vals + ["left"])
+
+
+@pytest.fixture(scope="module")
+def mpii_root(tmp_path_factory, mpii_sample):
+    """pXX layout: two real p00 frames and one image without a face; Camera.mat from the real calibration."""
+    import scipy.io
+
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    root = tmp_path_factory.mktemp("mpii")
+    (root / "p00" / "day01").mkdir(parents=True)
+    (root / "p00" / "Calibration").mkdir()
+    scipy.io.savemat(
+        root / "p00" / "Calibration" / "Camera.mat",
+        {"cameraMatrix": cam.matrix, "distCoeffs": cam.distortion.reshape(1, -1)},
+    )
+    for name in ("0087", "0088"):
+        shutil.copy(mpii_sample / ann["image"], root / "p00" / "day01" / f"{name}.jpg")
+    cv2.imwrite(str(root / "p00" / "day01" / "0089.jpg"), np.full((720, 1280, 3), 128, np.uint8))
+    fm = np.loadtxt(mpii_sample / "faceModelGeneric.txt")
+    lm = np.array(ann["landmarks_6_px"])
+    _, rvec, tvec = cv2.solvePnP(fm.T.reshape(-1, 1, 3), lm.reshape(-1, 1, 2), cam.matrix, cam.distortion)
+    fc = (cv2.Rodrigues(rvec)[0] @ fm + tvec).mean(axis=1)
+    gt = ann["gaze_target_3d_camera_mm"]
+    lines = [_mpii_line(f"day01/{n}.jpg", lm, rvec.ravel(), tvec.ravel(), fc, gt) for n in ("0087", "0088", "0089")]
+    (root / "p00" / "p00.txt").write_text("\n".join(lines) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def folder_root(tmp_path_factory, shared_data):
+    root = tmp_path_factory.mktemp("folder")
+    rows = ["image,subject,fx,fy,cx,cy,target_x,target_y,target_z"]
+    jsonl = []
+    for i, name in enumerate(("astronaut.png", "sergey.png")):
+        img = cv2.imread(str(shared_data / "faces" / name))
+        h, w = img.shape[:2]
+        shutil.copy(shared_data / "faces" / name, root / name)
+        f = max(w, h)
+        rows.append(f"{name},s{i},{f},{f},{w / 2 - 0.5},{h / 2 - 0.5},0,150,0")
+        jsonl.append(
+            {
+                "image": name,
+                "subject": f"s{i}",
+                "fx": f,
+                "fy": f,
+                "cx": w / 2 - 0.5,
+                "cy": h / 2 - 0.5,
+                "gaze_x": 0.0,
+                "gaze_y": 0.3,
+                "gaze_z": -1.0,
+            }
+        )
+    (root / "labels.csv").write_text("\n".join(rows) + "\n")
+    jroot = root / "jsonl"
+    jroot.mkdir()
+    for name in ("astronaut.png", "sergey.png"):
+        shutil.copy(root / name, jroot / name)
+    (jroot / "labels.jsonl").write_text("\n".join(json.dumps(r) for r in jsonl) + "\n")
+    return root
+
+
+def test_mpiifacegaze_reader(mpii_root, mpii_sample):
+    ds = open_dataset(mpii_root)
+    assert isinstance(ds, MPIIFaceGaze) and len(ds) == 3 and detect_format(mpii_root) == "mpiifacegaze"
+    s = next(iter(ds))
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    assert s.subject == "p00" and s.source_index == 0 and s.camera.image_size == (1280, 720)
+    np.testing.assert_allclose(s.gaze_target_mm, ann["gaze_target_3d_camera_mm"], atol=1e-5)
+    np.testing.assert_allclose(s.landmarks_px, ann["landmarks_6_px"], atol=0.05)
+    assert s.camera.has_distortion and s.head_rotation.shape == (3, 3)
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda t: t.replace(" left\n", "\n", 1), "line 1: expected 28 columns, found 27"),
+        (lambda t: t.replace("1200", "abc", 1), "line 1: non-numeric"),
+        (lambda t: t.replace("day01/0087.jpg", "day01/missing.jpg", 1), "line 1: image"),
+    ],
+)
+def test_mpiifacegaze_bad_annotations(mpii_root, tmp_path, mutate, message):
+    root = tmp_path / "m"
+    shutil.copytree(mpii_root, root)
+    ann = root / "p00" / "p00.txt"
+    ann.write_text(mutate(ann.read_text()))
+    with pytest.raises(DatasetError, match=message) as err:
+        list(MPIIFaceGaze(root))
+    assert "p00.txt" in str(err.value)
+
+
+def test_mpiifacegaze_missing_calibration(mpii_root, tmp_path):
+    root = tmp_path / "m"
+    shutil.copytree(mpii_root, root)
+    (root / "p00" / "Calibration" / "Camera.mat").unlink()
+    with pytest.raises(DatasetError, match="Camera.mat"):
+        list(MPIIFaceGaze(root))
+
+
+def test_folder_reader_csv_and_jsonl(folder_root):
+    ds = open_dataset(folder_root)
+    assert isinstance(ds, FolderDataset) and len(ds) == 2
+    a, b = list(ds)
+    assert a.subject == "s0" and a.camera.image_size == (512, 512) and a.gaze_target_mm.tolist() == [0, 150, 0]
+    j = list(open_dataset(folder_root / "jsonl"))
+    np.testing.assert_allclose(j[1].gaze_vector, np.array([0, 0.3, -1]) / np.linalg.norm([0, 0.3, -1]))
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("image,fx,fy,cx,cy\nastronaut.png,1,1,1,1\n", "line 1: missing columns: target_x"),
+        ("image,target_x,target_y,target_z\nastronaut.png,0,0,0\n", "line 1: missing columns: fx"),
+        ("image,fx,fy,cx,cy,target_x,target_y,target_z\nastronaut.png,512,x,256,256,0,0,0\n", "line 2: column 'fy'"),
+        ("image,fx,fy,cx,cy,target_x,target_y,target_z\nnope.png,512,512,256,256,0,0,0\n", "line 2: image"),
+        ("image,fx,fy,cx,cy,target_x,target_y,target_z\nastronaut.png,512,512,256\n", "line 2: expected 8 columns"),
+        ("image,fx,fy,cx,cy,gaze_x,gaze_y,gaze_z\nastronaut.png,512,512,256,256,0,0,0\n", "zero gaze"),
+        ("image,fx,fy,cx,cy,target_x,target_y,target_z\nastronaut.png,-5,512,256,256,0,0,0\n", "line 2: camera"),
+    ],
+)
+def test_folder_bad_labels(folder_root, tmp_path, text, message):
+    shutil.copy(folder_root / "astronaut.png", tmp_path / "astronaut.png")
+    (tmp_path / "labels.csv").write_text(text)
+    with pytest.raises(DatasetError, match=message) as err:
+        list(FolderDataset(tmp_path))
+    assert "labels.csv" in str(err.value)
+
+
+def test_format_detection_and_planned_readers(tmp_path, folder_root):
+    with pytest.raises(DatasetError, match="cannot tell"):
+        detect_format(tmp_path)
+    with pytest.raises(DatasetError, match="not a folder"):
+        detect_format(tmp_path / "nothing")
+    with pytest.raises(DatasetError, match="ethxgaze reader is not in this version"):
+        open_dataset(folder_root, "ethxgaze")
+
+
+def test_augment_writes_the_schema_and_skips_faceless_images(mpii_root, tmp_path):
+    out = tmp_path / "aug.h5"
+    settings = JobSettings(kind="augment", per_sample=2, seed=5)
+    summary = run_dataset(open_dataset(mpii_root), out, settings, progress=False)
+    assert summary["rows"] == 4 and summary["skipped"] == 1
+    assert summary["skipped_samples"][0]["source_index"] == 2 and "no face" in summary["skipped_samples"][0]["reason"]
+    d = read_h5(out)
+    assert d["left_eye"].shape == (4, 36, 60, 3) and d["left_eye"].dtype == np.uint8
+    assert d["head_pose"].shape == (4, 2) and d["gaze_vector"].shape == (4, 3)
+    assert d["source_index"].tolist() == [0, 0, 1, 1] and d["subject"].tolist() == [b"p00"] * 4
+    assert d["attrs"]["complete"] and d["attrs"]["settings"]["per_sample"] == 2 and d["attrs"]["settings"]["seed"] == 5
+    # the drawn head poses come out around the paper's pitch of 30 deg (face frame)
+    assert 20 < np.degrees(d["head_pose"][:, 0]).mean() < 40
+    # rows 0-1 and 2-3 come from the same image but different seeds [seed, index]
+    assert not np.allclose(d["sampled_yaw_pitch"][0], d["sampled_yaw_pitch"][2])
+    summary_file = json.loads(out.with_suffix(".summary.json").read_text())
+    assert summary_file["distributions"]["before"]["head_pose"]["count"] == 2
+    assert out.with_suffix(".distribution.png").is_file() and not part_path(out).exists()
+
+
+def test_same_output_whatever_the_workers(mpii_root, tmp_path):
+    settings = JobSettings(kind="augment", per_sample=2, seed=1)
+    run_dataset(open_dataset(mpii_root), tmp_path / "w1.h5", settings, progress=False)
+    run_dataset(open_dataset(mpii_root), tmp_path / "w2.h5", settings, workers=2, progress=False)
+    a, b = read_h5(tmp_path / "w1.h5"), read_h5(tmp_path / "w2.h5")
+    for k in a:
+        if k != "attrs":
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+class _Interrupting:
+    """A reader that is killed (KeyboardInterrupt) after ``n`` samples."""
+
+    def __init__(self, inner, n):
+        self.inner, self.n, self.name, self.root = inner, n, inner.name, inner.root
+
+    def __len__(self):
+        return len(self.inner)
+
+    def __iter__(self):
+        for i, s in enumerate(self.inner):
+            if i == self.n:
+                raise KeyboardInterrupt
+            yield s
+
+
+def test_resume_after_an_interruption(mpii_root, tmp_path):
+    settings = JobSettings(kind="augment", per_sample=2, seed=2)
+    out = tmp_path / "r.h5"
+    with pytest.raises(KeyboardInterrupt):
+        run_dataset(_Interrupting(open_dataset(mpii_root), 1), out, settings, progress=False, flush_every=1)
+    assert part_path(out).exists() and not out.exists()  # a killed run never looks complete
+    with pytest.raises(GazeAugError, match="--resume"):
+        run_dataset(open_dataset(mpii_root), out, settings, progress=False)
+    with pytest.raises(GazeAugError, match="other settings"):
+        run_dataset(
+            open_dataset(mpii_root), out, JobSettings(kind="augment", per_sample=3), resume=True, progress=False
+        )
+    run_dataset(open_dataset(mpii_root), out, settings, resume=True, progress=False)
+    run_dataset(open_dataset(mpii_root), tmp_path / "straight.h5", settings, progress=False)
+    a, b = read_h5(out), read_h5(tmp_path / "straight.h5")
+    for k in a:
+        if k != "attrs":
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # nothing lost, nothing duplicated
+    with pytest.raises(GazeAugError, match="--overwrite"):
+        run_dataset(open_dataset(mpii_root), out, settings, progress=False)
+
+
+def test_normalize_dataset_rows_are_the_normalized_images(mpii_root, tmp_path, detector):
+    from facemesh.io import load_image_rgb
+    from gazeaug.normalize import normalize_image
+    from gazeaug.pipeline import fit_face
+
+    out = tmp_path / "n.h5"
+    summary = run_dataset(open_dataset(mpii_root), out, JobSettings(kind="normalize-dataset"), progress=False)
+    assert summary["rows"] == 2 and summary["skipped"] == 1
+    d = read_h5(out)
+    s = next(iter(open_dataset(mpii_root)))
+    fit = fit_face(load_image_rgb(s.image_path), s.camera, detector)
+    ref = normalize_image(
+        fit.image, s.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, gaze_target_mm=s.gaze_target_mm
+    )
+    np.testing.assert_array_equal(d["left_eye"][0], ref.left.image)
+    np.testing.assert_allclose(d["gaze"][0], ref.face.gaze, atol=1e-6)
+    assert np.isnan(d["sampled_yaw_pitch"]).all()
+
+
+def test_inconsistent_calibration_is_an_error_naming_the_image(mpii_root, tmp_path):
+    root = tmp_path / "m"
+    shutil.copytree(mpii_root, root)
+    cv2.imwrite(str(root / "p00" / "day01" / "0088.jpg"), np.zeros((480, 640, 3), np.uint8))
+    with pytest.raises(DatasetError, match="0088.jpg: the image is 640x480"):
+        run_dataset(open_dataset(root), tmp_path / "x.h5", JobSettings(kind="normalize-dataset"), progress=False)
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_cli_augment_and_errors(folder_root, tmp_path, capsys):
+    out = tmp_path / "a.h5"
+    assert (
+        main(["augment", str(folder_root), "-o", str(out), "--per-sample", "1", "--quiet", "--rig", "wheelchair"]) == 0
+    )
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["rows"] == 2
+    assert read_h5(out)["attrs"]["settings"]["rig"]["name"] == "wheelchair"
+    assert main(["augment", str(tmp_path / "none"), "-o", str(tmp_path / "b.h5")]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    assert main(["augment", str(folder_root), "-o", str(tmp_path / "c.h5"), "--per-sample", "0"]) == 2
+    assert not (tmp_path / "c.h5").exists() and not part_path(tmp_path / "c.h5").exists()
