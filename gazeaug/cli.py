@@ -378,8 +378,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+
+    def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        print(f"gazeaug {args.command}: warning: {message}", file=sys.stderr)
+
     try:
-        return _COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show
+            return _COMMANDS[args.command](args)
     except (FaceMeshError, ImportError, FileNotFoundError) as exc:
         print(f"gazeaug {args.command}: error: {exc}", file=sys.stderr)
         return 2
