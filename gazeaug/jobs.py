@@ -112,7 +112,6 @@ def _worker_init(settings: JobSettings) -> None:
 
 def process_sample(sample: GazeSample) -> SampleOutcome:
     """Process one sample with the worker's state (see :func:`_worker_init`)."""
-    from facemesh.io import load_image_rgb
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
@@ -126,7 +125,7 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
         return SampleOutcome(idx, None, {"source_index": idx, "image": str(sample.image_path), "reason": reason})
 
     try:
-        image = load_image_rgb(sample.image_path)
+        image = sample.load_image()
     except InputError as exc:
         return skip(f"unreadable image: {exc}")
     h, w = image.shape[:2]

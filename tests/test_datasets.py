@@ -155,8 +155,8 @@ def test_format_detection_and_planned_readers(tmp_path, folder_root):
         detect_format(tmp_path)
     with pytest.raises(DatasetError, match="not a folder"):
         detect_format(tmp_path / "nothing")
-    with pytest.raises(DatasetError, match="ethxgaze reader is not in this version"):
-        open_dataset(folder_root, "ethxgaze")
+    with pytest.raises(DatasetError, match="utmultiview reader is not in this version"):
+        open_dataset(folder_root, "utmultiview")
 
 
 def test_augment_writes_the_schema_and_skips_faceless_images(mpii_root, tmp_path):
@@ -266,3 +266,107 @@ def test_cli_augment_and_errors(folder_root, tmp_path, capsys):
     assert "not a folder" in capsys.readouterr().err
     assert main(["augment", str(folder_root), "-o", str(tmp_path / "c.h5"), "--per-sample", "0"]) == 2
     assert not (tmp_path / "c.h5").exists() and not part_path(tmp_path / "c.h5").exists()
+
+
+def _eth_calibration(path, cam):
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_Width", int(cam.image_size[0]))
+    fs.write("image_Height", int(cam.image_size[1]))
+    fs.write("Camera_Matrix", cam.matrix)
+    fs.write("Distortion_Coefficients", cam.distortion.reshape(1, -1))
+    fs.release()
+
+
+@pytest.fixture(scope="module")
+def eth_root(tmp_path_factory, mpii_sample):
+    """ETH-XGaze layout with the real p00 frame as camera 00 and, turned upside down, as camera 03."""
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    root = tmp_path_factory.mktemp("eth")
+    (root / "calibration" / "cam_calibration").mkdir(parents=True)
+    frame = root / "data" / "train" / "subject0000" / "frame0000"
+    frame.mkdir(parents=True)
+    (root / "data" / "annotation_train").mkdir(parents=True)
+    img = cv2.imread(str(mpii_sample / ann["image"]))
+    lines = []
+    for cam_id, image in ((0, img), (3, img[::-1, ::-1])):
+        _eth_calibration(root / "calibration" / "cam_calibration" / f"cam{cam_id:02d}.xml", cam)
+        cv2.imwrite(str(frame / f"cam{cam_id:02d}.JPG"), image)
+        cols = ["frame0000", f"cam{cam_id:02d}.JPG", "100", "200", *map(str, ann["gaze_target_3d_camera_mm"])]
+        cols += ["0.1", "0.2", "0.05", "10", "20", "450"] + ["300.5"] * 136
+        lines.append(",".join(cols))
+    (root / "data" / "annotation_train" / "subject0000.csv").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_ethxgaze_reader_and_upside_down_cameras(eth_root, shared_data):
+    ds = open_dataset(eth_root)
+    assert ds.name == "ethxgaze" and len(ds) == 2 and detect_format(eth_root) == "ethxgaze"
+    a, b = list(ds)
+    assert a.subject == "subject0000" and not a.rotate_180 and b.rotate_180
+    assert a.landmarks_px.shape == (68, 2) and a.camera.image_size == (1280, 720)
+    # camera 03 is stored turned by 180 deg (JPEG re-encoding of the turned picture differs by a few levels)
+    assert np.abs(b.load_image().astype(float) - a.load_image()).mean() < 0.5
+    # the real ETH-XGaze calibration files load as they are
+    real = load_camera(shared_data / "gaze" / "calibrations" / "eth_xgaze_cams_original" / "cam03.xml")
+    assert real.image_size == (6000, 4000) and real.has_distortion
+
+
+def test_ethxgaze_runs_and_bad_annotations(eth_root, tmp_path):
+    summary = run_dataset(
+        open_dataset(eth_root), tmp_path / "e.h5", JobSettings(kind="normalize-dataset"), progress=False
+    )
+    assert summary["rows"] == 2 and summary["skipped"] == 0
+    d = read_h5(tmp_path / "e.h5")
+    # the turned camera gives the same eyes (up to JPEG re-encoding)
+    assert np.abs(d["left_eye"][0].astype(float) - d["left_eye"][1]).mean() < 1.0
+    root = tmp_path / "bad"
+    shutil.copytree(eth_root, root)
+    csv_path = root / "data" / "annotation_train" / "subject0000.csv"
+    csv_path.write_text(csv_path.read_text().replace(",300.5\n", "\n", 1))
+    with pytest.raises(DatasetError, match=r"subject0000.csv, line 1: expected 149 columns, found 148"):
+        open_dataset(root)
+
+
+@pytest.fixture(scope="module")
+def gazecapture_root(tmp_path_factory, mpii_sample):
+    import h5py
+
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    root = tmp_path_factory.mktemp("gc")
+    (root / "00002" / "frames").mkdir(parents=True)
+    shutil.copy(mpii_sample / ann["image"], root / "00002" / "frames" / "00000.jpg")
+    with h5py.File(root / "GazeCapture_supplementary.h5", "w") as f:
+        g = f.create_group("00002")
+        g["file_name"] = np.array([b"00002/frames/00000.jpg"])
+        k = cam.matrix
+        g["camera_parameters"] = np.array([[k[0, 0], k[1, 1], k[0, 2], k[1, 2]]])
+        g["distortion_parameters"] = cam.distortion.reshape(1, 5)
+        g["head_pose"] = np.array([[0.1, 0.2, 0.0, 10.0, 20.0, 450.0]])
+        g["3d_gaze_target"] = np.array([ann["gaze_target_3d_camera_mm"]])
+    return root
+
+
+def test_gazecapture_reader_and_run(gazecapture_root, tmp_path):
+    ds = open_dataset(gazecapture_root)
+    assert ds.name == "gazecapture" and len(ds) == 1 and detect_format(gazecapture_root) == "gazecapture"
+    s = next(iter(ds))
+    assert s.subject == "00002" and s.camera.image_size == (1280, 720) and s.camera.has_distortion
+    summary = run_dataset(ds, tmp_path / "g.h5", JobSettings(kind="augment", per_sample=2), progress=False)
+    assert summary["rows"] == 2
+
+
+def test_gazecapture_bad_supplementary(gazecapture_root, tmp_path):
+    import h5py
+
+    root = tmp_path / "gc"
+    shutil.copytree(gazecapture_root, root)
+    with h5py.File(root / "GazeCapture_supplementary.h5", "a") as f:
+        del f["00002/head_pose"]
+    with pytest.raises(DatasetError, match=r"group '00002': missing datasets \['head_pose'\]"):
+        open_dataset(root)
+    with h5py.File(root / "GazeCapture_supplementary.h5", "a") as f:
+        f["00002/head_pose"] = np.zeros((1, 5))
+    with pytest.raises(DatasetError, match="head_pose has shape"):
+        open_dataset(root)

@@ -4,11 +4,15 @@
 
 ``mpiifacegaze``
     the raw MPIIFaceGaze release (``pXX/pXX.txt`` + ``pXX/Calibration/Camera.mat``).
+``ethxgaze``
+    the raw ETH-XGaze release (per-subject annotation CSVs + per-camera XML calibrations).
+``gazecapture``
+    GazeCapture with its supplementary HDF5 (intrinsics, head pose, 3D gaze targets).
 ``folder``
     your own data: images plus ``labels.csv`` or ``labels.jsonl`` (:mod:`gazeaug.datasets.folder`).
 
-ETH-XGaze, GazeCapture (with its supplementary .h5) and UTMultiview readers are
-planned; asking for them says so.
+UTMultiview (with its reconstructed meshes) and ETH-XGaze's normalized .h5 release
+are planned; asking for them says so.
 """
 
 from __future__ import annotations
@@ -16,14 +20,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from .base import DatasetError, DatasetReader, GazeSample
+from .ethxgaze import ETHXGaze
 from .folder import LABEL_FILES, FolderDataset
+from .gazecapture import SUPPLEMENTARY_NAME, GazeCapture
 from .mpiifacegaze import MPIIFaceGaze
 
 __all__ = ["FORMATS", "open_dataset", "detect_format", "DatasetError", "DatasetReader", "GazeSample"]
 
-#: Formats :func:`open_dataset` knows (readers in this version: mpiifacegaze, folder).
+#: Formats :func:`open_dataset` knows (utmultiview: not in this version).
 FORMATS = ("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder")
-_PLANNED = ("ethxgaze", "gazecapture", "utmultiview")
+_PLANNED = ("utmultiview",)
 
 
 def detect_format(path: str | Path) -> str:
@@ -37,10 +43,15 @@ def detect_format(path: str | Path) -> str:
         raise DatasetError(f"{p}: not a folder (give the dataset's root folder)")
     if any((p / n).is_file() for n in LABEL_FILES):
         return "folder"
+    if (p / SUPPLEMENTARY_NAME).is_file():
+        return "gazecapture"
+    if (p / "data" / "annotation_train").is_dir() or (p / "data" / "annotation_test").is_dir():
+        return "ethxgaze"
     if any(d.is_dir() and (d / f"{d.name}.txt").is_file() for d in p.iterdir()):
         return "mpiifacegaze"
     raise DatasetError(
-        f"{p}: cannot tell the dataset format (no {' / '.join(LABEL_FILES)}, no pXX/pXX.txt); pass --format"
+        f"{p}: cannot tell the dataset format (no {' / '.join(LABEL_FILES)}, no pXX/pXX.txt, "
+        f"no {SUPPLEMENTARY_NAME}, no data/annotation_train/); pass --format"
     )
 
 
@@ -51,6 +62,12 @@ def open_dataset(path: str | Path, format: str | None = None) -> DatasetReader: 
         return MPIIFaceGaze(path)
     if fmt == "folder":
         return FolderDataset(path)
+    if fmt == "ethxgaze":
+        return ETHXGaze(path)
+    if fmt == "gazecapture":
+        return GazeCapture(path)
     if fmt in _PLANNED:
-        raise DatasetError(f"the {fmt} reader is not in this version yet (readers: mpiifacegaze, folder)")
+        raise DatasetError(
+            f"the {fmt} reader is not in this version yet (readers: mpiifacegaze, ethxgaze, gazecapture, folder)"
+        )
     raise DatasetError(f"format: expected one of {FORMATS}, got {fmt!r}")

@@ -45,6 +45,8 @@ class GazeSample:
         head_translation_mm: (3,) float64, mm, from the dataset, or ``None``.
         landmarks_px: (L, 2) float64, pixels, image frame: the dataset's own landmarks, or ``None``.
         face_model_mm: (L, 3) float64, mm, head frame: the 3D model of those landmarks, or ``None``.
+        rotate_180: the image file must be turned by 180 deg before use (ETH-XGaze's cameras
+            3, 6 and 13 were mounted upside down; their labels refer to the turned image).
         extras: anything else the reader wants to keep (JSON-serialisable).
     """
 
@@ -59,7 +61,15 @@ class GazeSample:
     head_translation_mm: NDArray[np.float64] | None = None
     landmarks_px: NDArray[np.float64] | None = None
     face_model_mm: NDArray[np.float64] | None = None
+    rotate_180: bool = False
     extras: Mapping[str, Any] = field(default_factory=dict)
+
+    def load_image(self) -> NDArray[np.uint8]:
+        """(H, W, 3) uint8 RGB, turned when :attr:`rotate_180` says so."""
+        from facemesh.io import load_image_rgb
+
+        image = load_image_rgb(self.image_path)
+        return np.ascontiguousarray(image[::-1, ::-1]) if self.rotate_180 else image
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_path", Path(self.image_path))

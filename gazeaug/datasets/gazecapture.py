@@ -1,0 +1,130 @@
+"""GazeCapture with the publicly released supplementary HDF5 (FAZE, Park et al. 2019).
+
+GazeCapture's own JSON files carry no intrinsics, head pose or 3D gaze
+target; the supplementary file (``GazeCapture_supplementary.h5``) adds them.
+It holds one group per subject (``00002``, ...) with, per frame:
+
+``file_name`` (N,) bytes
+    the image path relative to the dataset root (``00002/frames/00000.jpg``).
+``camera_parameters`` (N, 4)
+    fx, fy, cx, cy in pixels.
+``distortion_parameters`` (N, 5)
+    OpenCV k1, k2, p1, p2, k3.
+``head_pose`` (N, 6)
+    head rotation (Rodrigues) and translation (mm).
+``3d_gaze_target`` (N, 3)
+    the point looked at, mm, camera frame.
+
+Image sizes are read from the image headers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from facemesh.types import CameraIntrinsics, FaceMeshError
+
+from .base import DatasetError, GazeSample
+from .mpiifacegaze import _image_size
+
+__all__ = ["GazeCapture", "SUPPLEMENTARY_NAME", "REQUIRED"]
+
+#: The supplementary file's usual name, looked for in the dataset root.
+SUPPLEMENTARY_NAME = "GazeCapture_supplementary.h5"
+#: Datasets each subject group must have, with their per-row shapes.
+REQUIRED = {
+    "file_name": (),
+    "camera_parameters": (4,),
+    "distortion_parameters": (5,),
+    "head_pose": (6,),
+    "3d_gaze_target": (3,),
+}
+
+
+class GazeCapture:
+    """Reader of GazeCapture plus its supplementary HDF5.
+
+    Args:
+        root: the GazeCapture folder (subject folders ``00002/`` ... with ``frames/``).
+        supplementary: the supplementary .h5 (default: ``root/GazeCapture_supplementary.h5``).
+    """
+
+    name = "gazecapture"
+
+    def __init__(self, root: str | Path, supplementary: str | Path | None = None):
+        import h5py
+
+        self.root = Path(root)
+        self.supplementary = Path(supplementary) if supplementary else self.root / SUPPLEMENTARY_NAME
+        if not self.supplementary.is_file():
+            raise DatasetError(f"{self.supplementary}: GazeCapture's supplementary HDF5 not found")
+        try:
+            f = h5py.File(self.supplementary, "r")
+        except OSError as exc:
+            raise DatasetError(f"{self.supplementary}: not a readable HDF5 file ({exc})") from exc
+        self._data: list[tuple[str, dict[str, Any]]] = []
+        with f:
+            for subject in sorted(f.keys()):
+                g = f[subject]
+                where = f"{self.supplementary}, group {subject!r}"
+                missing = [k for k in REQUIRED if k not in g]
+                if missing:
+                    raise DatasetError(f"{where}: missing datasets {missing}")
+                arrays = {k: g[k][()] for k in REQUIRED}
+                n = len(arrays["file_name"])
+                for k, shape in REQUIRED.items():
+                    a = arrays[k]
+                    if len(a) != n or a.shape[1:] != shape:
+                        raise DatasetError(
+                            f"{where}: {k} has shape {a.shape}, expected ({n}, {', '.join(map(str, shape))})"
+                        )
+                self._data.append((subject, arrays))
+        if not self._data:
+            raise DatasetError(f"{self.supplementary}: no subject groups")
+
+    def __len__(self) -> int:
+        return sum(len(a["file_name"]) for _, a in self._data)
+
+    def __iter__(self) -> Iterator[GazeSample]:
+        import cv2
+
+        index = 0
+        for subject, a in self._data:
+            for i in range(len(a["file_name"])):
+                where = f"{self.supplementary}, group {subject!r}, row {i}"
+                name = a["file_name"][i]
+                name = name.decode("utf-8") if isinstance(name, bytes) else str(name)
+                image = self.root / name
+                if not image.is_file():
+                    raise DatasetError(f"{where}: image {image} not found")
+                fx, fy, cx, cy = (float(v) for v in a["camera_parameters"][i])
+                try:
+                    camera = CameraIntrinsics(
+                        matrix=np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64),
+                        distortion=np.asarray(a["distortion_parameters"][i], dtype=np.float64),
+                        image_size=_image_size(image),
+                        source=str(self.supplementary),
+                    )
+                except FaceMeshError as exc:
+                    raise DatasetError(f"{where}: {exc}") from exc
+                hp = np.asarray(a["head_pose"][i], dtype=np.float64)
+                if not np.isfinite(hp).all():
+                    raise DatasetError(f"{where}: head_pose is not finite")
+                try:
+                    yield GazeSample(
+                        image_path=image,
+                        camera=camera,
+                        subject=subject,
+                        source_index=index,
+                        gaze_target_mm=np.asarray(a["3d_gaze_target"][i], dtype=np.float64),
+                        head_rotation=np.asarray(cv2.Rodrigues(hp[:3])[0], dtype=np.float64),
+                        head_translation_mm=hp[3:],
+                        extras={"row": f"{subject}:{i}"},
+                    )
+                except DatasetError as exc:
+                    raise DatasetError(f"{where}: {exc}") from exc
+                index += 1
