@@ -85,6 +85,8 @@ class RaycastScene:
         ).astype(np.float32)
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
+        #: Embree threads per cast (0: all cores). One per process is faster when several processes render.
+        self.threads = 0
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(self._vertices), o3d.core.Tensor(self._triangles))
 
@@ -132,7 +134,7 @@ class RaycastScene:
         rays = np.empty(shape[:-1] + (6,), dtype=np.float32)
         rays[..., :3] = o
         rays[..., 3:] = d
-        ans = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)))
+        ans = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)), nthreads=self.threads)
         prim = ans["primitive_ids"].numpy()
         bary = ans["primitive_uvs"].numpy()
         hit = prim != self._scene.INVALID_ID

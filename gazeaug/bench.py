@@ -25,9 +25,10 @@ def _render_chunk(
     batch: int,
     settings: NormalizationSettings,
     first_face: int,
+    threads: int = 0,
 ) -> int:
     """Render ``poses`` (K, 2) cycling through faces; returns how many faces were loaded."""
-    rend = create_renderer(renderer, settings=settings)
+    rend = create_renderer(renderer, settings=settings, **({"threads": threads} if renderer == "raycast" else {}))
     done, faces = 0, 0
     while done < len(poses):
         asset = assets[(first_face + faces) % len(assets)]
@@ -97,7 +98,7 @@ def bench_render(
             list(pool.map(_warm, [assets] * len(chunks), [renderer] * len(chunks), [s] * len(chunks)))
             t0 = time.perf_counter()
             futures = [
-                pool.submit(_render_chunk, assets, renderer, c, per_face, batch, s, i) for i, c in enumerate(chunks)
+                pool.submit(_render_chunk, assets, renderer, c, per_face, batch, s, i, 0) for i, c in enumerate(chunks)
             ]
             faces = sum(f.result() for f in futures)
             dt = time.perf_counter() - t0

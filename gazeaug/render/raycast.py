@@ -25,8 +25,9 @@ __all__ = ["RaycastRenderer", "RaycastFaceScene"]
 class RaycastFaceScene:
     """One face in an Embree scene, plus its texture pyramid."""
 
-    def __init__(self, mesh: RenderMesh, antialias: bool = True):
+    def __init__(self, mesh: RenderMesh, antialias: bool = True, threads: int = 0):
         self._scene = RaycastScene(mesh.vertices_mm, mesh.triangles, mesh.uv, mesh.texture)
+        self._scene.threads = threads
         self._pyramid = build_pyramid(np.asarray(mesh.texture))
         self._antialias = antialias
 
@@ -48,9 +49,10 @@ class RaycastRenderer:
 
     name = "raycast"
 
-    def __init__(self, settings: NormalizationSettings | None = None, antialias: bool | None = None):
+    def __init__(self, settings: NormalizationSettings | None = None, antialias: bool | None = None, threads: int = 0):
         self.antialias = (settings or NormalizationSettings()).antialias if antialias is None else antialias
+        self.threads = int(threads)
 
     def scene(self, mesh: RenderMesh) -> RaycastFaceScene:
         """Load one face."""
-        return RaycastFaceScene(mesh, self.antialias)
+        return RaycastFaceScene(mesh, self.antialias, self.threads)
