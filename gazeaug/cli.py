@@ -123,6 +123,38 @@ def build_parser() -> argparse.ArgumentParser:
             a.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
             _add_distribution_options(a)
 
+    t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
+    t.add_argument("train", type=Path, help="training set (.h5 from augment or normalize-dataset)")
+    t.add_argument("-o", "--output", type=Path, required=True, help="model file (.pt)")
+    t.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
+    t.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
+    t.add_argument("--epochs", type=int, default=10)
+    t.add_argument("--batch-size", type=int, default=256)
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    t.add_argument("--model", default="mobilenet_gaze", help="registered model name")
+    t.add_argument("--resume", action="store_true", help="continue from the model's checkpoint")
+    t.add_argument("--quiet", action="store_true")
+
+    ev = sub.add_parser("evaluate", help="angular error of a model on a raw dataset or a normalized .h5")
+    ev.add_argument("model", type=Path)
+    ev.add_argument("dataset", type=Path, help="a dataset folder (any reader) or a normalized .h5")
+    ev.add_argument("-o", "--output", type=Path, required=True, help="report folder (errors.json/.csv/_hist.png)")
+    ev.add_argument("--format", choices=("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder"))
+    ev.add_argument("--limit", type=int, default=None)
+    ev.add_argument("--quiet", action="store_true")
+
+    pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
+    pr.add_argument("model", type=Path)
+    pr.add_argument("image", type=Path)
+    pr.add_argument("--camera", type=Path, help="calibration file (default: a documented default camera)")
+    pr.add_argument("-o", "--output", type=Path, default=None, help="picture with the gaze arrow (.png/.jpg)")
+
+    ex = sub.add_parser("export", help="export a model to ONNX")
+    ex.add_argument("model", type=Path)
+    ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
+
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
@@ -362,7 +394,95 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from .train import TrainSettings, train
+
+    settings = TrainSettings(
+        model=args.model, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device
+    )
+    log = train(
+        args.train,
+        args.output,
+        settings,
+        val_path=args.val,
+        val_subjects=args.val_subjects,
+        resume=args.resume,
+        progress=not args.quiet,
+    )
+    print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import evaluate_dataset, evaluate_h5, write_report
+    from .train import load_model
+
+    model, meta = load_model(args.model)
+    if args.dataset.suffix in (".h5", ".hdf5"):
+        result = evaluate_h5(model, args.dataset)
+    else:
+        from .datasets import open_dataset
+
+        reader = open_dataset(args.dataset, args.format)
+        result = evaluate_dataset(model, meta, reader, limit=args.limit, progress=not args.quiet)
+    paths = write_report(result, args.output)
+    short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped")}
+    short["per_subject"] = {k: round(v["mean_deg"], 3) for k, v in result["per_subject"].items()}
+    short["report"] = str(paths["json"])
+    print(json.dumps(short))
+    return 0
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from facemesh.conventions import vector_to_pitchyaw
+    from facemesh.io import save_image_rgb
+    from facemesh.pose import project_points
+
+    from .evaluate import predict_image, settings_from_meta
+    from .pipeline import fit_face, landmark_model_for, load_input_image
+    from .train import load_model
+
+    model, meta = load_model(args.model)
+    image, camera, source = load_input_image(args.image, args.camera)
+    fit = fit_face(image, camera, landmark_model_for(None, None), source=source)
+    g, sample = predict_image(model, image, fit, settings_from_meta(meta))
+    assert sample.face is not None
+    origin = sample.face.camera.reference_mm
+    out: dict[str, Any] = {
+        "image": source,
+        "gaze_vector_camera": np.round(g, 6).tolist(),
+        "gaze_pitchyaw_camera_deg": np.round(np.degrees(vector_to_pitchyaw(g)), 3).tolist(),
+        "gaze_origin_mm": np.round(origin, 2).tolist(),
+    }
+    if args.output is not None:
+        import cv2
+
+        pts = project_points(np.stack([origin, origin + 150.0 * g]), camera)
+        pic = image.copy()
+        a, b = (tuple(int(round(v)) for v in p) for p in pts)
+        thick = max(2, image.shape[1] // 300)
+        cv2.arrowedLine(pic, a, b, (255, 40, 40), thick, cv2.LINE_AA, tipLength=0.15)
+        save_image_rgb(args.output, pic)
+        out["picture"] = str(args.output)
+    print(json.dumps(out))
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .export import export_onnx
+    from .train import load_model
+
+    model, meta = load_model(args.model)
+    path = export_onnx(model, meta, args.output)
+    print(json.dumps({"onnx": str(path)}))
+    return 0
+
+
 _COMMANDS = {
+    "train": _cmd_train,
+    "evaluate": _cmd_evaluate,
+    "predict": _cmd_predict,
+    "export": _cmd_export,
     "augment": _cmd_dataset,
     "normalize-dataset": _cmd_dataset,
     "normalize": _cmd_normalize,

@@ -1,0 +1,54 @@
+"""ONNX export of a trained model (inputs ``left_eye``, ``right_eye``, ``head_pose``; output ``gaze``).
+
+Inputs are the *prepared* tensors of :func:`gazeaug.models.preprocess.prepare_inputs`
+(float32, eyes (N, 3, H, W) in [-1, 1], head pose (N, 2) radians); the batch
+dimension is dynamic. Uses PyTorch's TorchScript-based exporter, which needs
+the ``onnx`` package (``pip install 'gazeaug[train]'``; below 1.18, as
+mediapipe 0.10.21 needs protobuf < 5).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+from .errors import GazeAugError
+from .models import import_torch
+
+__all__ = ["export_onnx"]
+
+
+def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int = 17) -> Path:
+    """Write the model as ONNX (atomically); returns the path."""
+    import warnings
+
+    from facemesh.io import atomic_write
+
+    torch = import_torch()
+    try:
+        import onnx  # noqa: F401, PLC0415
+    except ImportError as exc:
+        raise ImportError(f"ONNX export needs the onnx package: pip install 'onnx<1.18' ({exc})") from exc
+    out = Path(output)
+    if out.suffix != ".onnx":
+        raise GazeAugError(f"{out}: the output must end in .onnx")
+    w, h = meta.get("patch_size_wh", (60, 36))
+    example = (torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w), torch.zeros(1, 2))
+    buf = io.BytesIO()
+    model = model.cpu().eval()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            model,
+            example,
+            buf,
+            input_names=["left_eye", "right_eye", "head_pose"],
+            output_names=["gaze"],
+            dynamic_axes={k: {0: "batch"} for k in ("left_eye", "right_eye", "head_pose", "gaze")},
+            opset_version=opset,
+            dynamo=False,
+        )
+    with atomic_write(out) as fh:
+        fh.write(buf.getvalue())
+    return out

@@ -1,0 +1,422 @@
+"""Training the gaze model on the HDF5 sets that ``augment`` and ``normalize-dataset`` write.
+
+Data are streamed: blocks of rows are read in a shuffled order and shuffled
+within, so memory stays bounded whatever the file's size. The model predicts
+the gaze (pitch, yaw) in the face-centre normalized frame; the loss is the
+L1 distance of the angles, the reported error the angle between 3D gaze
+vectors (degrees). One checkpoint per epoch (``MODEL.ckpt.pt``) lets an
+interrupted run resume; the final model (``MODEL.pt``) holds the weights, the
+model's name and options, the preprocessing, the normalization settings of
+its training data and the training log. The log is also written as CSV, with
+a plot of the curves.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import __version__
+from .errors import GazeAugError
+from .models import create_model, import_torch
+from .models.preprocess import PREPROCESSING, prepare_inputs
+
+__all__ = [
+    "TrainSettings",
+    "H5TrainingSet",
+    "train",
+    "load_model",
+    "predict_arrays",
+    "angular_errors_deg",
+    "MODEL_FORMAT",
+]
+
+MODEL_FORMAT = "gazeaug-model"
+_BLOCK = 2048
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Hyper-parameters (the same for original and augmented training, so differences come from the data).
+
+    Attributes:
+        model: registered model name (default ``mobilenet_gaze``).
+        model_options: keyword options of the model factory.
+        epochs: passes over the training set (default 10).
+        batch_size: samples per step (default 256).
+        lr: AdamW learning rate (default 1e-3), decayed by cosine to 1% at the end.
+        weight_decay: Adam weight decay (default 1e-4).
+        seed: seeds weights, shuffling and everything random (default 0).
+        device: ``auto`` (CUDA when present), ``cpu`` or ``cuda``.
+    """
+
+    model: str = "mobilenet_gaze"
+    model_options: dict[str, Any] = field(default_factory=dict)
+    epochs: int = 10
+    batch_size: int = 256
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.epochs, int) and self.epochs >= 1):
+            raise GazeAugError(f"epochs: expected an integer >= 1, got {self.epochs!r}")
+        if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
+            raise GazeAugError(f"batch size: expected an integer >= 1, got {self.batch_size!r}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise GazeAugError(f"learning rate: expected > 0, got {self.lr!r}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise GazeAugError(f"device: expected auto, cpu or cuda, got {self.device!r}")
+
+
+def angular_errors_deg(
+    pred_pitchyaw: NDArray[np.floating[Any]], true_pitchyaw: NDArray[np.floating[Any]]
+) -> NDArray[np.float64]:
+    """(N, 2) and (N, 2) radians (pitch, yaw) -> (N,) angles between the 3D gaze vectors, degrees."""
+    from facemesh.conventions import angular_error_deg, pitchyaw_to_vector
+
+    return np.asarray(
+        angular_error_deg(pitchyaw_to_vector(np.asarray(pred_pitchyaw)), pitchyaw_to_vector(np.asarray(true_pitchyaw))),
+        dtype=np.float64,
+    )
+
+
+class H5TrainingSet:
+    """Rows of a training-set HDF5 file, optionally restricted to or excluding some subjects.
+
+    Args:
+        path: the ``.h5`` written by ``augment`` or ``normalize-dataset``.
+        subjects: keep only these subjects.
+        exclude_subjects: drop these subjects (leave-one-subject-out).
+
+    Raises:
+        GazeAugError: unreadable file, unfinished run, missing keys, wrong shapes, NaN labels, no rows.
+    """
+
+    KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject")
+
+    def __init__(
+        self, path: str | Path, subjects: Sequence[str] | None = None, exclude_subjects: Sequence[str] | None = None
+    ):
+        import h5py
+
+        self.path = Path(path)
+        try:
+            f = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise GazeAugError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
+        with f:
+            missing = [k for k in self.KEYS if k not in f]
+            if missing:
+                raise GazeAugError(f"{self.path}: missing keys {missing} (not a gazeaug training set)")
+            if not bool(f.attrs.get("complete", False)):
+                raise GazeAugError(f"{self.path}: the run that wrote it did not finish (no 'complete' mark)")
+            n = f["left_eye"].shape[0]
+            eye_shape = f["left_eye"].shape[1:]
+            if len(eye_shape) != 3 or eye_shape[2] != 3 or f["right_eye"].shape != f["left_eye"].shape:
+                raise GazeAugError(f"{self.path}: eye patches must be (N, H, W, 3), got {f['left_eye'].shape}")
+            for k in ("head_pose", "gaze"):
+                if f[k].shape != (n, 2):
+                    raise GazeAugError(f"{self.path}: {k} must be ({n}, 2), got {f[k].shape}")
+            labels = np.concatenate([f["head_pose"][()], f["gaze"][()]], axis=1)
+            bad = ~np.isfinite(labels).all(axis=1)
+            if bad.any():
+                raise GazeAugError(
+                    f"{self.path}: {int(bad.sum())} rows have NaN or infinite labels (first: {int(np.argmax(bad))})"
+                )
+            subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]])
+            settings = f.attrs.get("settings", "{}")
+        keep = np.ones(n, dtype=bool)
+        if subjects is not None:
+            keep &= np.isin(subj, list(subjects))
+        if exclude_subjects is not None:
+            keep &= ~np.isin(subj, list(exclude_subjects))
+        self.rows = np.flatnonzero(keep)
+        if len(self.rows) == 0:
+            raise GazeAugError(f"{self.path}: no rows to use (after the subject selection)")
+        self.subjects = subj
+        self.patch_size_wh = (int(eye_shape[1]), int(eye_shape[0]))
+        try:
+            self.settings = json.loads(settings) if isinstance(settings, str) else {}
+        except json.JSONDecodeError:
+            self.settings = {}
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def batches(self, batch_size: int, rng: np.random.Generator | None = None) -> Iterator[dict[str, NDArray[Any]]]:
+        """Batches of ``left_eye``, ``right_eye``, ``head_pose``, ``gaze``, ``subject`` (numpy).
+
+        With ``rng``, blocks of rows come in a random order and are shuffled
+        within (streaming shuffle); without, in file order.
+        """
+        import h5py
+
+        blocks = [self.rows[i : i + _BLOCK] for i in range(0, len(self.rows), _BLOCK)]
+        order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
+        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in self.KEYS}
+        carried = 0
+        with h5py.File(self.path, "r") as f:
+            for b in order:
+                idx = blocks[b]
+                lo, hi = int(idx[0]), int(idx[-1]) + 1
+                sel = idx - lo
+                data = {k: f[k][lo:hi][sel] for k in self.KEYS if k != "subject"}
+                data["subject"] = self.subjects[idx]
+                perm = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))
+                for k in self.KEYS:
+                    carry[k].append(data[k][perm])
+                carried += len(idx)
+                while carried >= batch_size:
+                    joined = {k: np.concatenate(v) for k, v in carry.items()}
+                    yield {k: v[:batch_size] for k, v in joined.items()}
+                    carry = {k: [v[batch_size:]] for k, v in joined.items()}
+                    carried -= batch_size
+        if carried:
+            yield {k: np.concatenate(v) for k, v in carry.items()}
+
+
+def _device(name: str) -> Any:
+    torch = import_torch()
+    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
+        if not torch.cuda.is_available():
+            raise GazeAugError("device cuda asked for, but no CUDA device is available")
+        return torch.device("cuda")
+    return torch.device("cpu")
+
+
+def predict_arrays(
+    model: Any, left: NDArray[np.uint8], right: NDArray[np.uint8], head_pose: NDArray[Any], batch_size: int = 512
+) -> NDArray[np.float64]:
+    """Gaze (N, 2) radians (pitch, yaw), face frame, for eye patches (N, H, W, 3) and head poses (N, 2)."""
+    torch = import_torch()
+    device = next(model.parameters()).device
+    out = []
+    model.eval()
+    with torch.no_grad():
+        for i in range(0, len(left), batch_size):
+            a, b, c = prepare_inputs(left[i : i + batch_size], right[i : i + batch_size], head_pose[i : i + batch_size])
+            out.append(model(a.to(device), b.to(device), c.to(device)).cpu().numpy())
+    return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 2))
+
+
+def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
+    errs = []
+    for batch in data.batches(batch_size):
+        pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], batch_size)
+        errs.append(angular_errors_deg(pred, batch["gaze"]))
+    return float(np.concatenate(errs).mean())
+
+
+def _save(obj: dict[str, Any], path: Path) -> None:
+    from facemesh.io import atomic_write
+
+    torch = import_torch()
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    with atomic_write(path) as fh:
+        fh.write(buf.getvalue())
+
+
+def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, Any]]:
+    """A model saved by :func:`train` and its metadata (name, options, preprocessing, normalization, log).
+
+    Raises:
+        GazeAugError: missing, truncated or not a gazeaug model.
+    """
+    torch = import_torch()
+    p = Path(path)
+    if not p.is_file():
+        raise GazeAugError(f"{p}: no such model file")
+    try:
+        obj = torch.load(p, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 - torch raises many kinds for damaged files
+        raise GazeAugError(
+            f"{p}: not a readable model file (truncated or not a PyTorch file: {exc.__class__.__name__})"
+        ) from exc
+    if not isinstance(obj, dict) or obj.get("format") != MODEL_FORMAT:
+        raise GazeAugError(f"{p}: not a gazeaug model (no '{MODEL_FORMAT}' format mark)")
+    if obj.get("preprocessing", {}).get("version") != PREPROCESSING["version"]:
+        raise GazeAugError(f"{p}: made with another input preprocessing ({obj.get('preprocessing')})")
+    model = create_model(obj["model"], **obj.get("model_options", {}))
+    try:
+        model.load_state_dict(obj["state_dict"])
+    except (RuntimeError, KeyError) as exc:
+        raise GazeAugError(f"{p}: the weights do not fit model {obj['model']!r} ({exc})") from exc
+    model.to(_device(device)).eval()
+    meta = {k: v for k, v in obj.items() if k != "state_dict"}
+    return model, meta
+
+
+def train(
+    train_path: str | Path,
+    output: str | Path,
+    settings: TrainSettings | None = None,
+    *,
+    val_path: str | Path | None = None,
+    val_subjects: Sequence[str] | None = None,
+    resume: bool = False,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Train a model and save it to ``output`` (``.pt``); returns the per-epoch log.
+
+    Args:
+        train_path: training set (.h5).
+        output: the model file; ``.ckpt.pt``, ``.log.csv`` and ``.curves.png`` go beside it.
+        settings: hyper-parameters.
+        val_path: a validation set (.h5).
+        val_subjects: instead, hold these subjects of the training set out for validation.
+        resume: continue from ``output``'s checkpoint.
+        progress: show a progress bar.
+
+    Raises:
+        GazeAugError: bad files or settings.
+    """
+    torch = import_torch()
+    s = settings or TrainSettings()
+    out = Path(output)
+    if out.suffix != ".pt":
+        raise GazeAugError(f"{out}: the model file must end in .pt")
+    if val_path is not None and val_subjects:
+        raise GazeAugError("give --val or --val-subjects, not both")
+    ckpt_path = out.with_suffix(".ckpt.pt")
+    data = H5TrainingSet(train_path, exclude_subjects=val_subjects or None)
+    val = None
+    if val_path is not None:
+        val = H5TrainingSet(val_path)
+    elif val_subjects:
+        val = H5TrainingSet(train_path, subjects=val_subjects)
+    torch.manual_seed(s.seed)
+    device = _device(s.device)
+    model = create_model(s.model, **s.model_options).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+    steps_per_epoch = math.ceil(len(data) / s.batch_size)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(
+        opt, T_max=max(1, s.epochs * steps_per_epoch), eta_min=s.lr / 100
+    )
+    log: list[dict[str, Any]] = []
+    start_epoch = 0
+    if resume:
+        if not ckpt_path.is_file():
+            raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
+        ck = torch.load(ckpt_path, map_location=device, weights_only=False)
+        if ck.get("settings") != asdict(s) or ck.get("train_path") != str(Path(train_path).resolve()):
+            raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings or data")
+        model.load_state_dict(ck["state_dict"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        log = list(ck["log"])
+        start_epoch = int(ck["epoch"])
+        torch.set_rng_state(ck["torch_rng"])
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(
+            total=s.epochs * len(data), initial=start_epoch * len(data), unit="sample", desc="train", dynamic_ncols=True
+        )
+    for epoch in range(start_epoch, s.epochs):
+        rng = np.random.default_rng([s.seed, epoch])
+        model.train()
+        t0 = time.perf_counter()
+        losses, errs, seen = [], [], 0
+        for batch in data.batches(s.batch_size, rng):
+            a, b, c = prepare_inputs(batch["left_eye"], batch["right_eye"], batch["head_pose"])
+            y = torch.from_numpy(batch["gaze"].astype(np.float32)).to(device)
+            pred = model(a.to(device), b.to(device), c.to(device))
+            loss = (pred - y).abs().mean()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            losses.append(loss.item() * len(y))
+            errs.append(angular_errors_deg(pred.detach().cpu().numpy(), batch["gaze"]))
+            seen += len(y)
+            if bar is not None:
+                bar.update(len(y))
+                bar.set_postfix(loss=f"{loss.item():.4f}")
+        seconds = time.perf_counter() - t0
+        row = {
+            "epoch": epoch + 1,
+            "train_loss": sum(losses) / seen,
+            "train_error_deg": float(np.concatenate(errs).mean()),
+            "val_error_deg": _evaluate_set(model, val, 512) if val is not None else None,
+            "seconds": round(seconds, 3),
+            "samples_per_second": round(seen / seconds, 1),
+        }
+        log.append(row)
+        if bar is not None:
+            bar.write(json.dumps(row))
+        _save(
+            {
+                "state_dict": model.state_dict(),
+                "optimizer": opt.state_dict(),
+                "scheduler": sched.state_dict(),
+                "epoch": epoch + 1,
+                "settings": asdict(s),
+                "train_path": str(Path(train_path).resolve()),
+                "log": log,
+                "torch_rng": torch.get_rng_state(),
+            },
+            ckpt_path,
+        )
+    if bar is not None:
+        bar.close()
+    _save(
+        {
+            "format": MODEL_FORMAT,
+            "gazeaug_version": __version__,
+            "model": s.model,
+            "model_options": dict(s.model_options),
+            "state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
+            "preprocessing": PREPROCESSING,
+            "normalization": data.settings.get("normalization", {}),
+            "patch_size_wh": list(data.patch_size_wh),
+            "train_settings": asdict(s),
+            "train_data": str(train_path),
+            "val_subjects": list(val_subjects or []),
+            "log": log,
+        },
+        out,
+    )
+    _write_log(out, log)
+    return log
+
+
+def _write_log(out: Path, log: list[dict[str, Any]]) -> None:
+    from facemesh.io import atomic_write
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(log[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(log)
+    with atomic_write(out.with_suffix(".log.csv")) as fh:
+        fh.write(buf.getvalue().encode("utf-8"))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ep = [r["epoch"] for r in log]
+    ax.plot(ep, [r["train_error_deg"] for r in log], "o-", label="train")
+    if any(r["val_error_deg"] is not None for r in log):
+        ax.plot(ep, [r["val_error_deg"] for r in log], "s-", label="validation")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("angular error (deg)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    with atomic_write(out.with_suffix(".curves.png")) as fh:
+        fig.savefig(fh, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)

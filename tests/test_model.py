@@ -1,0 +1,207 @@
+"""The gaze model: registry, preprocessing, training (log, checkpoints, resume), evaluation, prediction, ONNX."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="the gaze model needs torch (pip install 'gazeaug[train]')")
+
+from gazeaug.cli import main  # noqa: E402
+from gazeaug.errors import GazeAugError  # noqa: E402
+from gazeaug.io_h5 import H5Writer, Rows  # noqa: E402
+from gazeaug.models import create_model  # noqa: E402
+from gazeaug.models.preprocess import prepare_inputs  # noqa: E402
+from gazeaug.train import H5TrainingSet, TrainSettings, load_model, predict_arrays, train  # noqa: E402
+
+
+def _synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0):
+    """A training set whose gaze pitch is readable from the images: brightness encodes it."""
+    rng = np.random.default_rng(seed)
+    gaze = rng.uniform(-0.4, 0.4, (n, 2)).astype(np.float32)
+    level = (128 + 250 * gaze[:, 0]).clip(0, 255)
+    eyes = (level[:, None, None, None] + rng.normal(0, 3, (n, 36, 60, 3))).clip(0, 255).astype(np.uint8)
+    head = rng.uniform(-0.3, 0.3, (n, 2)).astype(np.float32)
+    if nan_rows:
+        gaze[:nan_rows] = np.nan
+    eye3 = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
+    rows = Rows(
+        {
+            "left_eye": eyes,
+            "right_eye": eyes,
+            "head_pose": head,
+            "gaze": gaze,
+            "head_pose_vector": np.zeros((n, 3)),
+            "gaze_vector": np.zeros((n, 3)),
+            "head_pose_left": head,
+            "head_pose_right": head,
+            "gaze_left": gaze,
+            "gaze_right": gaze,
+            "R_norm_left": eye3,
+            "R_norm_right": eye3,
+            "R_norm_face": eye3,
+            "subject": np.array([subjects[i % len(subjects)].encode() for i in range(n)]),
+            "source_index": np.arange(n),
+            "sampled_yaw_pitch": np.full((n, 2), np.nan),
+        }
+    )
+    w = H5Writer(
+        path,
+        {
+            "settings": {
+                "normalization": {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
+            }
+        },
+        (60, 36),
+    )
+    w.append(rows, n - 1)
+    w.finish()
+    return path
+
+
+def test_registry_and_shapes():
+    m = create_model("mobilenet_gaze")
+    a, b, c = prepare_inputs(
+        np.zeros((4, 36, 60, 3), np.uint8), np.full((4, 36, 60, 3), 255, np.uint8), np.zeros((4, 2))
+    )
+    assert m(a, b, c).shape == (4, 2)
+    assert float(a.min()) == -1.0 and float(b.max()) == 1.0 and a.shape == (4, 3, 36, 60)
+    with pytest.raises(GazeAugError, match="model: expected one of"):
+        create_model("resnet9000")
+
+
+def test_preprocessing_does_not_mirror():
+    img = np.zeros((1, 36, 60, 3), np.uint8)
+    img[0, :, :10, 0] = 255  # red on the left of the patch
+    a, _, _ = prepare_inputs(img, img, np.zeros((1, 2)))
+    assert float(a[0, 0, :, :10].mean()) == 1.0 and float(a[0, 0, :, 50:].mean()) == -1.0
+
+
+def test_training_learns_logs_and_resumes(tmp_path):
+    data = _synthetic_h5(tmp_path / "t.h5")
+    s = TrainSettings(epochs=4, batch_size=32, lr=3e-3, seed=1)
+    log = train(data, tmp_path / "m.pt", s, val_subjects=["b"], progress=False)
+    assert len(log) == 4 and log[-1]["train_error_deg"] < log[0]["train_error_deg"]
+    assert log[-1]["val_error_deg"] is not None
+    for suffix in (".log.csv", ".curves.png", ".ckpt.pt"):
+        assert (tmp_path / f"m{suffix}").is_file()
+    model, meta = load_model(tmp_path / "m.pt")
+    assert meta["model"] == "mobilenet_gaze" and meta["normalization"]["distance_mm"] == 600.0
+    # interrupted after 2 epochs, then resumed: the same model as the uninterrupted run
+    import gazeaug.train as tr
+
+    real_save, calls = tr._save, []
+
+    def save_then_die(obj, path):
+        real_save(obj, path)
+        calls.append(path)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    tr._save = save_then_die
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            train(data, tmp_path / "r.pt", s, val_subjects=["b"], progress=False)
+    finally:
+        tr._save = real_save
+    assert not (tmp_path / "r.pt").exists()
+    log2 = train(data, tmp_path / "r.pt", s, val_subjects=["b"], resume=True, progress=False)
+    assert [r["epoch"] for r in log2] == [1, 2, 3, 4]
+    resumed, _ = load_model(tmp_path / "r.pt")
+    for (k, a), b in zip(model.state_dict().items(), resumed.state_dict().values()):
+        np.testing.assert_allclose(a.numpy(), b.numpy(), atol=1e-5, err_msg=k)
+    with pytest.raises(GazeAugError, match="other settings"):
+        train(
+            data,
+            tmp_path / "r.pt",
+            TrainSettings(epochs=5, batch_size=32),
+            val_subjects=["b"],
+            resume=True,
+            progress=False,
+        )
+
+
+def test_bad_training_inputs(tmp_path):
+    with pytest.raises(GazeAugError, match="NaN"):
+        H5TrainingSet(_synthetic_h5(tmp_path / "nan.h5", nan_rows=3))
+    good = _synthetic_h5(tmp_path / "g.h5")
+    with pytest.raises(GazeAugError, match="no rows"):
+        H5TrainingSet(good, subjects=["zz"])
+    import h5py
+
+    with h5py.File(tmp_path / "missing.h5", "w") as f:
+        f["left_eye"] = np.zeros((2, 36, 60, 3), np.uint8)
+    with pytest.raises(GazeAugError, match="missing keys"):
+        H5TrainingSet(tmp_path / "missing.h5")
+    (tmp_path / "junk.h5").write_bytes(b"junk")
+    with pytest.raises(GazeAugError, match="not a readable HDF5"):
+        H5TrainingSet(tmp_path / "junk.h5")
+    with pytest.raises(GazeAugError, match="epochs"):
+        TrainSettings(epochs=0)
+
+
+def test_model_files_that_are_not_ours(tmp_path):
+    (tmp_path / "x.pt").write_bytes(b"not a model")
+    with pytest.raises(GazeAugError, match="not a readable model"):
+        load_model(tmp_path / "x.pt")
+    torch.save({"weights": 1}, tmp_path / "y.pt")
+    with pytest.raises(GazeAugError, match="not a gazeaug model"):
+        load_model(tmp_path / "y.pt")
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    train(data, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    blob = (tmp_path / "m.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(blob[: len(blob) // 2])
+    with pytest.raises(GazeAugError, match="not a readable model"):
+        load_model(tmp_path / "cut.pt")
+    with pytest.raises(GazeAugError, match="no such model"):
+        load_model(tmp_path / "none.pt")
+
+
+def test_onnx_export_matches_pytorch(tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    train(data, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    assert main(["export", str(tmp_path / "m.pt"), "-o", str(tmp_path / "m.onnx")]) == 0
+    model, _ = load_model(tmp_path / "m.pt")
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 255, (5, 36, 60, 3), dtype=np.uint8)
+    right = rng.integers(0, 255, (5, 36, 60, 3), dtype=np.uint8)
+    head = rng.uniform(-0.3, 0.3, (5, 2)).astype(np.float32)
+    expected = predict_arrays(model, left, right, head)
+    a, b, c = prepare_inputs(left, right, head)
+    sess = ort.InferenceSession(str(tmp_path / "m.onnx"))
+    got = sess.run(None, {"left_eye": a.numpy(), "right_eye": b.numpy(), "head_pose": c.numpy()})[0]
+    np.testing.assert_allclose(got, expected, atol=1e-4)
+
+
+def test_evaluate_predict_cli(tmp_path, shared_data, capsys):
+    from gazeaug.datasets import open_dataset
+    from gazeaug.jobs import JobSettings, run_dataset
+
+    # a real (tiny) augmented training set from two photos, evaluated on the raw photos and on an .h5
+    root = tmp_path / "ds"
+    root.mkdir()
+    import shutil
+
+    rows = ["image,subject,fx,fy,cx,cy,target_x,target_y,target_z"]
+    for i, name in enumerate(("astronaut.png", "sergey.png")):
+        shutil.copy(shared_data / "faces" / name, root / name)
+        rows.append(
+            f"{name},s{i},600,600,{(512 if i == 0 else 600) / 2 - 0.5},{(512 if i == 0 else 600) / 2 - 0.5},0,150,0"
+        )
+    (root / "labels.csv").write_text("\n".join(rows) + "\n")
+    run_dataset(open_dataset(root), tmp_path / "aug.h5", JobSettings(per_sample=8), progress=False)
+    assert main(["train", str(tmp_path / "aug.h5"), "-o", str(tmp_path / "m.pt"), "--epochs", "2", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(tmp_path / "m.pt"), str(root), "-o", str(tmp_path / "ev"), "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["count"] == 2 and res["skipped"] == 0 and set(res["per_subject"]) == {"s0", "s1"}
+    assert (tmp_path / "ev" / "errors.csv").is_file() and (tmp_path / "ev" / "errors_hist.png").is_file()
+    assert main(["evaluate", str(tmp_path / "m.pt"), str(tmp_path / "aug.h5"), "-o", str(tmp_path / "ev2")]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["count"] == 16
+    assert main(["predict", str(tmp_path / "m.pt"), str(root / "sergey.png"), "-o", str(tmp_path / "p.png")]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert len(out["gaze_vector_camera"]) == 3 and (tmp_path / "p.png").is_file()
+    assert main(["predict", str(tmp_path / "nothing.pt"), str(root / "sergey.png")]) == 2
