@@ -155,6 +155,21 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("model", type=Path)
     ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
 
+    xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
+    xp.add_argument("--train", type=Path, required=True, help="training dataset folder (any reader)")
+    xp.add_argument("--test", type=Path, required=True, help="test dataset folder (any reader)")
+    xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
+    xp.add_argument("--train-format", default=None)
+    xp.add_argument("--test-format", default=None)
+    xp.add_argument("--per-sample", type=int, default=4)
+    xp.add_argument("--epochs", type=int, default=10)
+    xp.add_argument("--batch-size", type=int, default=256)
+    xp.add_argument("--lr", type=float, default=1e-3)
+    xp.add_argument("--seed", type=int, default=0)
+    xp.add_argument("--workers", type=int, default=1)
+    xp.add_argument("--quiet", action="store_true")
+    _add_distribution_options(xp)
+
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
@@ -478,7 +493,33 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    from .experiment import ExperimentSettings, run_experiment, table
+    from .train import TrainSettings
+
+    settings = ExperimentSettings(
+        per_sample=args.per_sample,
+        distribution=_distribution(args),
+        train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed),
+        workers=args.workers,
+        seed=args.seed,
+    )
+    results = run_experiment(
+        args.train,
+        args.test,
+        args.output,
+        settings,
+        train_format=args.train_format,
+        test_format=args.test_format,
+        progress=not args.quiet,
+    )
+    print(table(results))
+    print(json.dumps({"report": str(args.output / "report.md"), "reduction_percent": results["reduction_percent"]}))
+    return 0
+
+
 _COMMANDS = {
+    "experiment": _cmd_experiment,
     "train": _cmd_train,
     "evaluate": _cmd_evaluate,
     "predict": _cmd_predict,

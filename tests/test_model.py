@@ -205,3 +205,34 @@ def test_evaluate_predict_cli(tmp_path, shared_data, capsys):
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert len(out["gaze_vector_camera"]) == 3 and (tmp_path / "p.png").is_file()
     assert main(["predict", str(tmp_path / "nothing.pt"), str(root / "sergey.png")]) == 2
+
+
+def test_experiment_runs_end_to_end(tmp_path, shared_data, capsys):
+    import shutil
+
+    for split, names in (("train", ("astronaut.png", "sergey.png")), ("test", ("business-person.png",))):
+        root = tmp_path / split
+        root.mkdir()
+        rows = ["image,subject,fx,fy,cx,cy,target_x,target_y,target_z"]
+        for i, name in enumerate(names):
+            shutil.copy(shared_data / "faces" / name, root / name)
+            rows.append(f"{name},s{i},1000,1000,300,300,0,150,0")
+        (root / "labels.csv").write_text("\n".join(rows) + "\n")
+    # the test photo is 958 x 1358: give it its own principal point through width/height-free intrinsics
+    (tmp_path / "test" / "labels.csv").write_text(
+        "image,subject,fx,fy,cx,cy,target_x,target_y,target_z\nbusiness-person.png,t0,1358,1358,478.5,678.5,0,150,0\n"
+    )
+    out = tmp_path / "exp"
+    args = ["experiment", "--train", str(tmp_path / "train"), "--test", str(tmp_path / "test"), "-o", str(out)]
+    assert main(args + ["--epochs", "1", "--per-sample", "2", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "| training dataset | error, original data | error, augmented data | reduction |" in text
+    res = json.loads((out / "results.json").read_text())
+    assert res["runs"]["original"]["test_count"] == 1 and res["runs"]["augmented"]["rows"] == 4
+    for f in (
+        "report.md",
+        "examples_augmented.png",
+        "train_augmented.distribution.png",
+        "test_normalized.distribution.png",
+    ):
+        assert (out / f).is_file(), f
