@@ -17,6 +17,54 @@ import numpy as np  # noqa: E402
 from facemesh.conventions import pitchyaw_to_vector  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "img" / "pitch_convention.png"
+SIM_OUT = Path(__file__).resolve().parent / "img" / "simulated_rigs.png"
+
+
+def simulation_figure() -> None:
+    """Simulated images of the built-in sample from both rigs, the eyeballs' axes drawn to the targets."""
+    import json
+    import tempfile
+
+    import cv2
+
+    from facemesh.io import load_image_rgb, save_image_rgb
+    from facemesh.pose import project_points
+    from facemesh.types import CameraIntrinsics
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import simulate
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for rig_name in ("screen", "wheelchair"):
+            rig = BUILTIN_RIGS[rig_name]
+            out = Path(tmp) / rig_name
+            simulate([None], rig, out, per_face=3, seed=3, progress=False)
+            w, h = rig.image_size_wh
+            k = np.array([[rig.focal_px, 0, (w - 1) / 2], [0, rig.focal_px, (h - 1) / 2], [0, 0, 1]])
+            cam = CameraIntrinsics(k, np.zeros(5), (w, h))
+            tiles = []
+            for line in (out / "simulation.jsonl").read_text().splitlines():
+                t = json.loads(line)
+                img = load_image_rgb(out / t["image"])
+                for side in ("left", "right"):
+                    c = np.array(t["eyeball_centres_mm"][side])
+                    a = np.array(t["optical_axes"][side])
+                    p0, p1 = project_points(np.stack([c, c + 150 * a]), cam)
+                    cv2.arrowedLine(
+                        img,
+                        tuple(int(v) for v in p0),
+                        tuple(int(v) for v in p1),
+                        (255, 230, 0),
+                        2,
+                        cv2.LINE_AA,
+                        tipLength=0.2,
+                    )
+                cv2.putText(img, rig_name, (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.9, (255, 255, 255), 2, cv2.LINE_AA)
+                tiles.append(img)
+            rows.append(np.concatenate(tiles, axis=1))
+    sheet = np.concatenate(rows, axis=0)
+    save_image_rgb(SIM_OUT, cv2.resize(sheet, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
+    print(f"wrote {SIM_OUT}")
 
 
 def main() -> None:
@@ -62,3 +110,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    simulation_figure()

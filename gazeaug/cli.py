@@ -155,9 +155,19 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("model", type=Path)
     ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
 
+    sm = sub.add_parser("simulate", help="simulated subjects with known gaze, written as a folder dataset")
+    sm.add_argument("--faces", type=Path, nargs="*", default=None, help="face photos (default: the built-in sample)")
+    sm.add_argument("--rig", default="screen", help="'screen', 'wheelchair' or a RIG.yaml (default screen)")
+    sm.add_argument("--per-face", type=int, default=10, help="images per face (default 10)")
+    sm.add_argument("--seed", type=int, default=0)
+    sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
+    sm.add_argument("--quiet", action="store_true")
+
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
-    xp.add_argument("--train", type=Path, required=True, help="training dataset folder (any reader)")
-    xp.add_argument("--test", type=Path, required=True, help="test dataset folder (any reader)")
+    xp.add_argument("--train", type=Path, default=None, help="training dataset folder (default: simulated 'screen')")
+    xp.add_argument("--test", type=Path, default=None, help="test dataset folder (default: simulated 'wheelchair')")
+    xp.add_argument("--faces", type=Path, nargs="*", default=None, help="extra face photos for the simulated setup")
+    xp.add_argument("--large", action="store_true", help="a larger simulated setup (more images per face)")
     xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
     xp.add_argument("--train-format", default=None)
     xp.add_argument("--test-format", default=None)
@@ -493,10 +503,29 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .sampling import load_rig
+    from .simulate import simulate
+
+    faces = list(args.faces) if args.faces else [None]
+    summary = simulate(
+        faces, load_rig(args.rig), args.output, per_face=args.per_face, seed=args.seed, progress=not args.quiet
+    )
+    print(json.dumps({k: summary[k] for k in ("output", "images", "faces")}))
+    return 0
+
+
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from .experiment import ExperimentSettings, run_experiment, table
+    from .errors import GazeAugError
+    from .experiment import ExperimentSettings, run_experiment, simulated_setup, table
     from .train import TrainSettings
 
+    if (args.train is None) != (args.test is None):
+        raise GazeAugError("give both --train and --test, or neither (the built-in simulated setup)")
+    if args.train is None:
+        args.train, args.test = simulated_setup(
+            args.output, extra_faces=args.faces or [], large=args.large, seed=args.seed, progress=not args.quiet
+        )
     settings = ExperimentSettings(
         per_sample=args.per_sample,
         distribution=_distribution(args),
@@ -519,6 +548,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 _COMMANDS = {
+    "simulate": _cmd_simulate,
     "experiment": _cmd_experiment,
     "train": _cmd_train,
     "evaluate": _cmd_evaluate,

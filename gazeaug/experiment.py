@@ -23,7 +23,51 @@ from .jobs import JobSettings, run_dataset
 from .sampling import HeadPoseDistribution
 from .train import TrainSettings
 
-__all__ = ["ExperimentSettings", "run_experiment"]
+__all__ = ["ExperimentSettings", "run_experiment", "simulated_setup", "table"]
+
+
+def _wheel_faces() -> list[str | None]:
+    """Face photos inside installed wheels: the built-in astronaut (None) and matplotlib's grace_hopper."""
+    faces: list[str | None] = [None]
+    try:
+        import matplotlib
+
+        p = Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg"
+        if p.is_file():
+            faces.append(str(p))
+    except ImportError:
+        pass
+    return faces
+
+
+def simulated_setup(
+    out_dir: str | Path,
+    *,
+    extra_faces: list[Path] | None = None,
+    large: bool = False,
+    seed: int = 0,
+    progress: bool = True,
+    sizes: tuple[int, int] | None = None,
+) -> tuple[Path, Path]:
+    """The built-in setup: a simulated ``screen`` training set and a ``wheelchair`` test set of other faces.
+
+    Faces: the photos inside installed wheels and ``extra_faces``; the training set
+    gets every face but the last, the test set the last one (different people).
+    Default size: 60 training images per face and 60 test images (``large``: 400 and 200;
+    ``sizes`` overrides both).
+    """
+    from .sampling import BUILTIN_RIGS
+    from .simulate import simulate
+
+    faces: list[str | Path | None] = [*_wheel_faces(), *(extra_faces or [])]
+    if len(faces) < 2:
+        raise GazeAugError("the simulated setup needs at least two faces (one to train on, one to test on)")
+    out = Path(out_dir)
+    n_train, n_test = sizes or ((400, 200) if large else (60, 60))
+    train_dir, test_dir = out / "sim_train_screen", out / "sim_test_wheelchair"
+    simulate(faces[:-1], BUILTIN_RIGS["screen"], train_dir, per_face=n_train, seed=seed, progress=progress)
+    simulate(faces[-1:], BUILTIN_RIGS["wheelchair"], test_dir, per_face=n_test, seed=seed + 1, progress=progress)
+    return train_dir, test_dir
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,11 @@ class Rig:
         head_yaw_std_deg, head_pitch_std_deg: spread of the head's own turning (deg, standard deviations).
         head_yaw_mean_deg, head_pitch_mean_deg: the head's mean turn away from straight ahead (deg,
             same convention: positive pitch = looking up, positive yaw = toward the user's right).
+        image_size_wh: the camera's image size (for the simulator).
+        focal_px: the camera's focal length in pixels (principal point at the image centre).
+        target_box_mm: ((x0, y0, z0), (x1, y1, z1)) corners of the box, rig frame, where the
+            targets the user looks at lie (drawn uniformly).
+        head_position_std_mm: spread of the head's position around the rig frame's origin.
     """
 
     name: str = "custom"
@@ -121,6 +126,13 @@ class Rig:
     head_pitch_std_deg: float = 5.0
     head_yaw_mean_deg: float = 0.0
     head_pitch_mean_deg: float = 0.0
+    image_size_wh: tuple[int, int] = (640, 480)
+    focal_px: float = 600.0
+    target_box_mm: tuple[tuple[float, float, float], tuple[float, float, float]] = (
+        (-250.0, 0.0, -600.0),
+        (250.0, 300.0, -600.0),
+    )
+    head_position_std_mm: float = 15.0
 
     def __post_init__(self) -> None:
         c = np.asarray(self.camera_position_mm, dtype=np.float64)
@@ -133,6 +145,16 @@ class Rig:
             if not math.isfinite(v) or (f.endswith("std_deg") and v < 0):
                 raise GazeAugError(f"rig {self.name!r}: {f} must be finite{' and >= 0' if 'std' in f else ''}, got {v}")
         object.__setattr__(self, "camera_position_mm", tuple(float(x) for x in c))
+        w, h = (int(v) for v in self.image_size_wh)
+        if w < 32 or h < 32 or not (math.isfinite(self.focal_px) and self.focal_px > 0):
+            raise GazeAugError(f"rig {self.name!r}: bad camera: image {self.image_size_wh}, focal {self.focal_px}")
+        object.__setattr__(self, "image_size_wh", (w, h))
+        box = np.asarray(self.target_box_mm, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or (box[0] > box[1]).any():
+            raise GazeAugError(f"rig {self.name!r}: target_box_mm: expected [[x0, y0, z0], [x1, y1, z1]], min <= max")
+        if box[1, 2] >= 0:
+            raise GazeAugError(f"rig {self.name!r}: targets must lie in front of the face (z < 0)")
+        object.__setattr__(self, "target_box_mm", (tuple(float(v) for v in box[0]), tuple(float(v) for v in box[1])))
 
     def head_poses(self, n: int, rng: np.random.Generator | int | None = None) -> NDArray[np.float64]:
         """Head poses as this camera sees them: (n, 2) float64 radians, the (yaw, pitch) of ``R(y, p)``.
@@ -179,24 +201,39 @@ class Rig:
             "head_pitch_std_deg": self.head_pitch_std_deg,
             "head_yaw_mean_deg": self.head_yaw_mean_deg,
             "head_pitch_mean_deg": self.head_pitch_mean_deg,
+            "image_size_wh": list(self.image_size_wh),
+            "focal_px": self.focal_px,
+            "target_box_mm": [list(c) for c in self.target_box_mm],
+            "head_position_std_mm": self.head_position_std_mm,
         }
 
 
-#: Built-in rigs: the paper's wheelchair camera (30 deg below the eyes' line of
-#: sight, 460 mm away) and a webcam on top of a monitor (a dataset-like setup).
+#: Built-in rigs.
+#:
+#: ``wheelchair``: the paper's application. The camera is 460 mm from the eyes,
+#: 30 deg below their horizontal line of sight, pointing at them; the head is
+#: level on average (so the camera sees it pitched +30 deg, the paper's
+#: assumption); the user looks at objects within a robot arm's reach, in
+#: front and below.
+#:
+#: ``screen``: a dataset-like setup (MPIIFaceGaze's laptops): a webcam at the top
+#: of a screen about at eye level, 550 mm away; the targets lie on the screen,
+#: below the camera; the head turns and tilts naturally.
 BUILTIN_RIGS = {
     "wheelchair": Rig(
         name="wheelchair",
         camera_position_mm=(0.0, 460.0 * math.sin(math.radians(30)), -460.0 * math.cos(math.radians(30))),
         head_yaw_std_deg=10.0,
         head_pitch_std_deg=5.0,
+        target_box_mm=((-300.0, 50.0, -650.0), (300.0, 300.0, -350.0)),
     ),
     "screen": Rig(
         name="screen",
-        camera_position_mm=(0.0, -150.0, -600.0),
+        camera_position_mm=(0.0, -20.0, -550.0),
         head_yaw_std_deg=10.0,
         head_pitch_std_deg=6.0,
-        head_pitch_mean_deg=-10.0,
+        head_pitch_mean_deg=-8.0,
+        target_box_mm=((-200.0, 0.0, -550.0), (200.0, 250.0, -550.0)),
     ),
 }
 
@@ -227,6 +264,11 @@ def load_rig(spec: str | Path) -> Rig:
     if not isinstance(data, dict):
         raise GazeAugError(f"{p}: expected a mapping of rig fields, got {type(data).__name__}")
     known = set(Rig.__dataclass_fields__)
+    for k in ("camera_position_mm", "image_size_wh"):
+        if isinstance(data.get(k), list):
+            data[k] = tuple(data[k])
+    if isinstance(data.get("target_box_mm"), list):
+        data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
     unknown = sorted(set(data) - known)
     if unknown:
         raise GazeAugError(f"{p}: unknown rig fields {unknown} (known: {sorted(known)})")

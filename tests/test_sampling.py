@@ -91,8 +91,10 @@ def test_builtin_rigs_and_their_fitted_distributions():
     d = BUILTIN_RIGS["wheelchair"].distribution()
     assert abs(d.mean_deg[1] - 30) < 0.5 and abs(d.mean_deg[0]) < 0.5
     assert 60 < d.cov_deg2[0][0] < 140  # head yaw std 10 deg, slightly shrunk by the pitch
+    # the screen camera is 20 mm above the eyes at 550 mm (atan(20/550) = 2.1 deg above) and the head
+    # tilts down 8 deg on average: seen pitch about -8 - 2.1 = -10.1
     s = BUILTIN_RIGS["screen"].distribution()
-    assert s.mean_deg[1] < 0  # a camera above the screen looks down at a face that looks at the screen
+    assert abs(s.mean_deg[1] - (-8 - np.degrees(np.arctan2(20, 550)))) < 0.5
 
 
 def test_rig_files(tmp_path):

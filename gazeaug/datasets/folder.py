@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -174,7 +174,7 @@ class FolderDataset:
                 raise DatasetError(f"{where}: {exc}") from exc
 
 
-def write_labels_csv(path: str | Path, rows: list[Mapping[str, Any]]) -> None:
+def write_labels_csv(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> None:
     """Write ``labels.csv`` rows (dicts with the columns above) atomically."""
     from facemesh.io import atomic_write
 
