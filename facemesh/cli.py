@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--texture-format", choices=("png", "jpeg"), default="png", help="texture encoding inside the .glb")
     b.add_argument("--texture-margin", type=float, default=0.15, help="texture crop margin, fraction of the face size")
+    b.add_argument("--atlas", action="store_true", help="repack the texture into a compact atlas (xatlas)")
     b.add_argument("--preview", type=Path, help="also write a picture: the mesh rendered over the photo")
 
     i = sub.add_parser("info", help="describe a .glb written by facemesh")
@@ -151,6 +152,10 @@ def _cmd_build(args: argparse.Namespace) -> None:
         close = getattr(detector, "close", None)
         if close is not None:
             close()
+    if args.atlas:
+        from .atlas import atlas_mesh
+
+        mesh = atlas_mesh(mesh)
     save_glb(mesh, args.output, texture_format=args.texture_format)
     print(
         f"facemesh: wrote {args.output} ({mesh.num_vertices} vertices, {mesh.num_triangles} triangles, "

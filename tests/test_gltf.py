@@ -439,7 +439,7 @@ def _validator_dir() -> Path:
     return Path(env) if env else REPO_ROOT / ".tools" / "node" / "node_modules" / "gltf-validator"
 
 
-@pytest.mark.parametrize("case", ["png", "jpeg", "points"])
+@pytest.mark.parametrize("case", ["png", "jpeg", "points", "atlas"])
 def test_khronos_validator(tmp_path: Path, case: str) -> None:
     """The Khronos glTF validator reports no errors and no warnings."""
     node = shutil.which("node")
@@ -454,6 +454,10 @@ def test_khronos_validator(tmp_path: Path, case: str) -> None:
     path = tmp_path / f"{case}.glb"
     if case == "points":
         save_glb(make_mesh(triangles=np.zeros((0, 3), dtype=np.int64)), path)
+    elif case == "atlas":
+        from facemesh.atlas import atlas_mesh
+
+        save_glb(atlas_mesh(make_mesh()), path)
     else:
         save_glb(make_mesh(), path, texture_format=case)
     proc = subprocess.run(
@@ -474,3 +478,37 @@ def test_khronos_validator(tmp_path: Path, case: str) -> None:
     problems = [m for m in issues["messages"] if m["severity"] <= 1]
     assert issues["numErrors"] == 0, problems
     assert issues["numWarnings"] == 0, problems
+
+
+def test_atlas_keeps_landmark_order_and_renders_alike(tmp_path: Path, shared_data: Path) -> None:
+    """--atlas: vertex i < N is still landmark i, seam copies are appended, the view barely changes."""
+    from facemesh.atlas import atlas_mesh
+    from facemesh.camera import camera_for_image
+    from facemesh.io import load_image_rgb
+    from facemesh.landmarks import MediaPipeFaceMesh
+    from facemesh.build import build_mesh
+    from facemesh.render import RaycastScene
+
+    img = load_image_rgb(shared_data / "faces" / "sergey.png")
+    h, w = img.shape[:2]
+    cam = camera_for_image(None, w, h, warn=False)
+    with MediaPipeFaceMesh() as det:
+        mesh = build_mesh(img, cam, det)
+    a = atlas_mesh(mesh)
+    n = mesh.num_vertices
+    dup = np.asarray(a.extras["atlas"]["duplicate_of"])
+    assert a.num_vertices == n + len(dup) and len(dup) > 0
+    np.testing.assert_array_equal(a.vertices_mm[:n], mesh.vertices_mm)
+    np.testing.assert_array_equal(a.vertices_mm[n:], mesh.vertices_mm[dup])
+    back = np.concatenate([np.arange(n), dup])
+    np.testing.assert_array_equal(back[a.triangles], mesh.triangles)  # same triangles, same winding
+    assert a.texture.shape[:2] == tuple(a.extras["atlas"]["size"][::-1])
+    ra = RaycastScene.from_mesh(mesh).render(cam.matrix, (w, h)).image.astype(float)
+    rb = RaycastScene.from_mesh(a).render(cam.matrix, (w, h)).image.astype(float)
+    face = (ra.sum(-1) > 0) & (rb.sum(-1) > 0)
+    assert np.abs(ra - rb)[face].mean() < 3.0  # two bilinear resamplings
+    path = tmp_path / "atlas.glb"
+    save_glb(a, path)
+    b = load_glb(path)
+    assert b.num_vertices == a.num_vertices and b.extras["atlas"]["duplicate_of"] == dup.tolist()
+    np.testing.assert_allclose(b.uv, a.uv, atol=1e-6)

@@ -166,13 +166,14 @@ def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUN
     """The face mesh plus background rings around its outer contour (see the module docstring).
 
     Meshes whose boundary is not a set of simple loops (some Ball-Pivoting
-    results) get no rings; their misses are inpainted.
+    results) and meshes with an atlas texture get no rings; their misses are inpainted.
     """
     v = np.asarray(mesh.vertices_mm, dtype=np.float64)
     tri = np.asarray(mesh.triangles, dtype=np.int64)
     uv = np.asarray(mesh.uv, dtype=np.float64)
     n = len(v)
-    loops = _boundary_loops(tri.tobytes())
+    # an atlas texture (facemesh build --atlas) is no longer the photo: rings cannot be textured from it
+    loops = [] if "atlas" in mesh.extras else _boundary_loops(tri.tobytes())
     texels = float(np.mean(mesh.camera.focal_px) / np.linalg.norm(mesh.pose.translation_mm))
     if not loops or not rings:
         return RenderMesh(v, tri, uv, np.asarray(mesh.texture), n, texels)
