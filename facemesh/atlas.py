@@ -20,7 +20,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from .conventions import uv_to_pixels
 from .types import FaceMesh, InputError

@@ -483,10 +483,10 @@ def test_khronos_validator(tmp_path: Path, case: str) -> None:
 def test_atlas_keeps_landmark_order_and_renders_alike(tmp_path: Path, shared_data: Path) -> None:
     """--atlas: vertex i < N is still landmark i, seam copies are appended, the view barely changes."""
     from facemesh.atlas import atlas_mesh
+    from facemesh.build import build_mesh
     from facemesh.camera import camera_for_image
     from facemesh.io import load_image_rgb
     from facemesh.landmarks import MediaPipeFaceMesh
-    from facemesh.build import build_mesh
     from facemesh.render import RaycastScene
 
     img = load_image_rgb(shared_data / "faces" / "sergey.png")
