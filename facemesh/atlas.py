@@ -121,8 +121,8 @@ def atlas_mesh(mesh: FaceMesh, *, padding_px: int = 2) -> FaceMesh:
             tex, m, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
         )
         mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
-        cv2.fillConvexPoly(mask, np.round(local * 16).astype(np.int32), 1, lineType=cv2.LINE_AA, shift=4)
-        cv2.fillConvexPoly(mask, np.round(local).astype(np.int32), 1)
+        cv2.fillConvexPoly(mask, np.round(local * 16).astype(np.int32), (1,), lineType=cv2.LINE_AA, shift=4)
+        cv2.fillConvexPoly(mask, np.round(local).astype(np.int32), (1,))
         roi = out[y0:y1, x0:x1]
         sel = mask > 0
         roi[sel] = patch[sel]
