@@ -193,11 +193,17 @@ def test_evaluate_predict_cli(tmp_path, shared_data, capsys):
         )
     (root / "labels.csv").write_text("\n".join(rows) + "\n")
     run_dataset(open_dataset(root), tmp_path / "aug.h5", JobSettings(per_sample=8), progress=False)
+    # the test set also has an image without a face: counted and reported, not fatal
+    import cv2
+
+    cv2.imwrite(str(root / "blank.png"), np.full((300, 300, 3), 128, np.uint8))
+    with (root / "labels.csv").open("a") as fh:
+        fh.write("blank.png,s9,300,300,149.5,149.5,0,150,0\n")
     assert main(["train", str(tmp_path / "aug.h5"), "-o", str(tmp_path / "m.pt"), "--epochs", "2", "--quiet"]) == 0
     capsys.readouterr()
     assert main(["evaluate", str(tmp_path / "m.pt"), str(root), "-o", str(tmp_path / "ev"), "--quiet"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert res["count"] == 2 and res["skipped"] == 0 and set(res["per_subject"]) == {"s0", "s1"}
+    assert res["count"] == 2 and res["skipped"] == 1 and set(res["per_subject"]) == {"s0", "s1"}
     assert (tmp_path / "ev" / "errors.csv").is_file() and (tmp_path / "ev" / "errors_hist.png").is_file()
     assert main(["evaluate", str(tmp_path / "m.pt"), str(tmp_path / "aug.h5"), "-o", str(tmp_path / "ev2")]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["count"] == 16
