@@ -83,6 +83,9 @@ class RaycastScene:
         self._tri_px = np.stack(
             [corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=1
         ).astype(np.float32)
+        self._c0 = np.ascontiguousarray(self._tri_px[:, 0])
+        self._e1 = np.ascontiguousarray(self._tri_px[:, 1])
+        self._e2 = np.ascontiguousarray(self._tri_px[:, 2])
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
         #: Embree threads per cast (0: all cores). One per process is faster when several processes render.
@@ -138,8 +141,11 @@ class RaycastScene:
         prim = ans["primitive_ids"].numpy()
         bary = ans["primitive_uvs"].numpy()
         hit = prim != self._scene.INVALID_ID
-        tri = self._tri_px[np.where(hit, prim, 0)]  # (K, 3, 2) float32: corner 0, edge 1, edge 2
-        px = tri[:, 0] + bary[:, 0:1] * tri[:, 1] + bary[:, 1:2] * tri[:, 2]
+        # texture position = corner 0 + b1 edge 1 + b2 edge 2 of the hit triangle (misses: clipped, then zeroed)
+        idx = prim.astype(np.int64)
+        px = np.take(self._c0, idx, axis=0, mode="clip")
+        px += bary[:, 0:1] * np.take(self._e1, idx, axis=0, mode="clip")
+        px += bary[:, 1:2] * np.take(self._e2, idx, axis=0, mode="clip")
         px[~hit] = 0.0
         t_hit = ans["t_hit"].numpy()
         return hit.reshape(shape[:-1]), px.reshape(shape[:-1] + (2,)), t_hit.reshape(shape[:-1])

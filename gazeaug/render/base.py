@@ -115,7 +115,7 @@ def view_rays(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.fl
     """Rays of every pixel of every view, in the mesh's (source camera) frame.
 
     Returns:
-        ``(origins, directions)``: (P, 1, 1, 3) and (P, H, W, 3) float64.
+        ``(origins, directions)``: (P, 1, 1, 3) float64 and (P, H, W, 3) float32.
     """
     if not views:
         raise GazeAugError("no views to render")
@@ -127,8 +127,8 @@ def view_rays(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.fl
     # mesh-frame ray of pixel (u, v, 1): A^T R^T S^-1 C^-1 (u, v, 1)
     m = np.einsum("pji,pjk->pik", a, np.stack([v.camera.pixel_to_ray for v in views]))
     w, h = sizes.pop()
-    grid = pixel_grid((w, h)).reshape(-1, 3)
-    dirs = np.matmul(grid[None], m.transpose(0, 2, 1)).reshape(len(views), h, w, 3)
+    grid = pixel_grid((w, h)).reshape(-1, 3).astype(np.float32)
+    dirs = np.matmul(grid[None], m.transpose(0, 2, 1).astype(np.float32)).reshape(len(views), h, w, 3)
     origins = -np.einsum("pji,pj->pi", a, b)  # A^T (0 - b)
     return origins[:, None, None, :], dirs
 
