@@ -110,7 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
         a = sub.add_parser(name, help=help_)
         a.add_argument("dataset", type=Path, help="the dataset's root folder")
         a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
-        a.add_argument("--format", choices=("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder"))
+        a.add_argument(
+            "--format",
+            choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder"),
+        )
         a.add_argument("--workers", type=int, default=1, help="processes (default 1)")
         a.add_argument("--seed", type=int, default=0)
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
@@ -141,7 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("model", type=Path)
     ev.add_argument("dataset", type=Path, help="a dataset folder (any reader) or a normalized .h5")
     ev.add_argument("-o", "--output", type=Path, required=True, help="report folder (errors.json/.csv/_hist.png)")
-    ev.add_argument("--format", choices=("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder"))
+    ev.add_argument(
+        "--format", choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder")
+    )
     ev.add_argument("--limit", type=int, default=None)
     ev.add_argument("--quiet", action="store_true")
 

@@ -370,3 +370,53 @@ def test_gazecapture_bad_supplementary(gazecapture_root, tmp_path):
         f["00002/head_pose"] = np.zeros((1, 5))
     with pytest.raises(DatasetError, match="head_pose has shape"):
         open_dataset(root)
+
+
+@pytest.fixture(scope="module")
+def eth_normalized_root(tmp_path_factory, shared_data):
+    """ETH-XGaze normalized layout: a 224 face patch made from a real photo (stored BGR), with its gaze."""
+    import h5py
+
+    from facemesh.camera import camera_for_image
+    from facemesh.io import load_image_rgb
+    from gazeaug.camera import normalized_camera
+    from gazeaug.normalize import reference_points
+    from gazeaug.pipeline import fit_face
+    from facemesh.landmarks import MediaPipeFaceMesh
+
+    img = load_image_rgb(shared_data / "faces" / "sergey.png")
+    h, w = img.shape[:2]
+    cam = camera_for_image(None, w, h, warn=False)
+    with MediaPipeFaceMesh() as det:
+        fit = fit_face(img, cam, det)
+    centre = reference_points(fit.pose.rotation, fit.pose.translation_mm, fit.model.vertices_mm, fit.keypoints)["face"]
+    ncam = normalized_camera(centre, fit.pose.rotation, distance_mm=300, focal_px=480, size_wh=(224, 224))
+    patch = cv2.warpPerspective(img, ncam.warp_matrix(cam.matrix), (224, 224))
+    gaze = np.array([[-0.1, 0.2], [0.05, -0.3]])
+    root = tmp_path_factory.mktemp("ethn")
+    with h5py.File(root / "subject0003.h5", "w") as f:
+        f["face_patch"] = np.stack([patch[..., ::-1], patch[..., ::-1]])
+        f["face_gaze"] = gaze
+        f["cam_index"] = np.array([[0], [1]])
+    return root
+
+
+def test_ethxgaze_normalized_reader_and_run(eth_normalized_root, tmp_path):
+    from facemesh.conventions import pitchyaw_to_vector
+
+    ds = open_dataset(eth_normalized_root)
+    assert (
+        ds.name == "ethxgaze_normalized"
+        and len(ds) == 2
+        and detect_format(eth_normalized_root) == "ethxgaze_normalized"
+    )
+    a, b = list(ds)
+    assert a.camera.image_size == (224, 224) and a.subject == "subject0003"
+    np.testing.assert_allclose(b.gaze_vector, pitchyaw_to_vector([0.05, -0.3]), atol=1e-12)
+    img = a.load_image()
+    assert img.shape == (224, 224, 3) and img[..., 0].mean() != img[..., 2].mean()  # BGR turned to RGB
+    summary = run_dataset(ds, tmp_path / "n.h5", JobSettings(kind="normalize-dataset"), progress=False)
+    assert summary["rows"] == 2 and summary["skipped"] == 0
+    d = read_h5(tmp_path / "n.h5")
+    # the face-frame gaze of the training rows is the file's gaze (the virtual camera is the normalized one)
+    np.testing.assert_allclose(d["gaze"], [[-0.1, 0.2], [0.05, -0.3]], atol=0.02)

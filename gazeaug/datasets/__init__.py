@@ -6,13 +6,14 @@
     the raw MPIIFaceGaze release (``pXX/pXX.txt`` + ``pXX/Calibration/Camera.mat``).
 ``ethxgaze``
     the raw ETH-XGaze release (per-subject annotation CSVs + per-camera XML calibrations).
+``ethxgaze_normalized``
+    ETH-XGaze's normalized ``subjectXXXX.h5`` release (face patches as images of the normalized camera).
 ``gazecapture``
     GazeCapture with its supplementary HDF5 (intrinsics, head pose, 3D gaze targets).
 ``folder``
     your own data: images plus ``labels.csv`` or ``labels.jsonl`` (:mod:`gazeaug.datasets.folder`).
 
-UTMultiview (with its reconstructed meshes) and ETH-XGaze's normalized .h5 release
-are planned; asking for them says so.
+UTMultiview (with its reconstructed meshes) is planned; asking for it says so.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pathlib import Path
 
 from .base import DatasetError, DatasetReader, GazeSample
 from .ethxgaze import ETHXGaze
+from .ethxgaze_normalized import ETHXGazeNormalized, looks_like_ethxgaze_normalized
 from .folder import LABEL_FILES, FolderDataset
 from .gazecapture import SUPPLEMENTARY_NAME, GazeCapture
 from .mpiifacegaze import MPIIFaceGaze
@@ -28,7 +30,7 @@ from .mpiifacegaze import MPIIFaceGaze
 __all__ = ["FORMATS", "open_dataset", "detect_format", "DatasetError", "DatasetReader", "GazeSample"]
 
 #: Formats :func:`open_dataset` knows (utmultiview: not in this version).
-FORMATS = ("mpiifacegaze", "ethxgaze", "gazecapture", "utmultiview", "folder")
+FORMATS = ("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder")
 _PLANNED = ("utmultiview",)
 
 
@@ -47,6 +49,8 @@ def detect_format(path: str | Path) -> str:
         return "gazecapture"
     if (p / "data" / "annotation_train").is_dir() or (p / "data" / "annotation_test").is_dir():
         return "ethxgaze"
+    if looks_like_ethxgaze_normalized(p):
+        return "ethxgaze_normalized"
     if any(d.is_dir() and (d / f"{d.name}.txt").is_file() for d in p.iterdir()):
         return "mpiifacegaze"
     raise DatasetError(
@@ -66,8 +70,11 @@ def open_dataset(path: str | Path, format: str | None = None) -> DatasetReader: 
         return ETHXGaze(path)
     if fmt == "gazecapture":
         return GazeCapture(path)
+    if fmt == "ethxgaze_normalized":
+        return ETHXGazeNormalized(path)
     if fmt in _PLANNED:
         raise DatasetError(
-            f"the {fmt} reader is not in this version yet (readers: mpiifacegaze, ethxgaze, gazecapture, folder)"
+            f"the {fmt} reader is not in this version yet "
+            f"(readers: {', '.join(f for f in FORMATS if f not in _PLANNED)})"
         )
     raise DatasetError(f"format: expected one of {FORMATS}, got {fmt!r}")

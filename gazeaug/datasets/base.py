@@ -19,7 +19,28 @@ from facemesh.types import CameraIntrinsics
 
 from ..errors import GazeAugError
 
-__all__ = ["GazeSample", "DatasetReader", "DatasetError"]
+__all__ = ["GazeSample", "DatasetReader", "DatasetError", "H5ImageRef"]
+
+
+class H5ImageRef:
+    """A picklable reference to one image stored in an HDF5 dataset (``path``, ``key``, row ``index``).
+
+    ``bgr=True`` when the file stores BGR (ETH-XGaze's normalized release does).
+    """
+
+    def __init__(self, path: str | Path, key: str, index: int, bgr: bool = False):
+        self.path, self.key, self.index, self.bgr = str(path), key, int(index), bool(bgr)
+
+    def __call__(self) -> NDArray[np.uint8]:
+        """(H, W, 3) uint8 RGB."""
+        import h5py
+
+        with h5py.File(self.path, "r") as f:
+            img = np.asarray(f[self.key][self.index], dtype=np.uint8)
+        return np.ascontiguousarray(img[..., ::-1] if self.bgr else img)
+
+    def __repr__(self) -> str:
+        return f"{self.path}#{self.key}[{self.index}]"
 
 
 class DatasetError(GazeAugError):
@@ -47,6 +68,8 @@ class GazeSample:
         face_model_mm: (L, 3) float64, mm, head frame: the 3D model of those landmarks, or ``None``.
         rotate_180: the image file must be turned by 180 deg before use (ETH-XGaze's cameras
             3, 6 and 13 were mounted upside down; their labels refer to the turned image).
+        image_ref: where the image is when it is not a file of its own (an HDF5 row); then
+            ``image_path`` names the container, for messages.
         extras: anything else the reader wants to keep (JSON-serialisable).
     """
 
@@ -62,13 +85,14 @@ class GazeSample:
     landmarks_px: NDArray[np.float64] | None = None
     face_model_mm: NDArray[np.float64] | None = None
     rotate_180: bool = False
+    image_ref: H5ImageRef | None = None
     extras: Mapping[str, Any] = field(default_factory=dict)
 
     def load_image(self) -> NDArray[np.uint8]:
         """(H, W, 3) uint8 RGB, turned when :attr:`rotate_180` says so."""
         from facemesh.io import load_image_rgb
 
-        image = load_image_rgb(self.image_path)
+        image = self.image_ref() if self.image_ref is not None else load_image_rgb(self.image_path)
         return np.ascontiguousarray(image[::-1, ::-1]) if self.rotate_180 else image
 
     def __post_init__(self) -> None:
