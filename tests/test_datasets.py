@@ -379,10 +379,10 @@ def eth_normalized_root(tmp_path_factory, shared_data):
 
     from facemesh.camera import camera_for_image
     from facemesh.io import load_image_rgb
+    from facemesh.landmarks import MediaPipeFaceMesh
     from gazeaug.camera import normalized_camera
     from gazeaug.normalize import reference_points
     from gazeaug.pipeline import fit_face
-    from facemesh.landmarks import MediaPipeFaceMesh
 
     img = load_image_rgb(shared_data / "faces" / "sergey.png")
     h, w = img.shape[:2]
