@@ -137,8 +137,9 @@ def build_face_mesh(
     camera: CameraIntrinsics,
     settings: BuildSettings | None = None,
     extras: Mapping[str, Any] | None = None,
+    pose: HeadPose | None = None,
 ) -> FaceMesh:
-    """Solve the head pose and build the textured mesh of one face.
+    """Solve the head pose (unless given) and build the textured mesh of one face.
 
     Args:
         image_rgb: (H, W, 3) uint8 RGB, the image the landmarks were found in.
@@ -147,6 +148,8 @@ def build_face_mesh(
         camera: the image's camera.
         settings: see :class:`BuildSettings`.
         extras: JSON-serialisable metadata to carry into the asset.
+        pose: the head pose already solved from these landmarks with this model and camera
+            (skips solving it again).
 
     Raises:
         InputError: mismatched sizes or settings; PoseError: PnP failed.
@@ -158,7 +161,8 @@ def build_face_mesh(
     n = model.num_points
     if landmarks.num_points < n:
         raise InputError(f"landmarks: {landmarks.num_points} points, but face model {model.name!r} has {n}")
-    pose = solve_head_pose(landmarks.points_px[:n], model.vertices_mm, camera)
+    if pose is None:
+        pose = solve_head_pose(landmarks.points_px[:n], model.vertices_mm, camera)
     vertices = place_vertices(s.vertex_placement, landmarks, model, pose, camera)
     reconstruction: dict[str, Any] = {}
     if model.triangles is not None and s.reconstruction == "auto":

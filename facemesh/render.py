@@ -80,12 +80,9 @@ class RaycastScene:
         th, tw = self._texture.shape[:2]
         # per triangle: first corner's texture pixel and the edges to the other two, gathered once per hit
         corners = uv_to_pixels(self._uv, (tw, th))[self._triangles.astype(np.int64)]
-        self._tri_px = np.stack(
-            [corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=1
-        ).astype(np.float32)
-        self._c0 = np.ascontiguousarray(self._tri_px[:, 0])
-        self._e1 = np.ascontiguousarray(self._tri_px[:, 1])
-        self._e2 = np.ascontiguousarray(self._tri_px[:, 2])
+        self._c0 = corners[:, 0].astype(np.float32)
+        self._e1 = (corners[:, 1] - corners[:, 0]).astype(np.float32)
+        self._e2 = (corners[:, 2] - corners[:, 0]).astype(np.float32)
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
         #: Embree threads per cast (0: all cores). One per process is faster when several processes render.

@@ -229,37 +229,37 @@ def _distribution(args: argparse.Namespace) -> Any:
     return HeadPoseDistribution.from_variance(args.yaw_mean, args.pitch_mean, var[0], var[1])
 
 
-def _face_asset(args: argparse.Namespace, path: Path | None) -> tuple[Any, str]:
-    """The face to render (from a .glb or an image) and its name."""
-    from .augment import face_asset
-    from .pipeline import fit_face, landmark_model_for, load_input_image, load_mesh, mesh_for_fit
+def _fit_input(args: argparse.Namespace, path: Path | None) -> Any:
+    """The face in the input image (--camera, --landmarks, --face-model, --face-index), as a FaceFit."""
+    from .pipeline import fit_face, landmark_model_for, load_input_image
 
-    if path is not None and path.suffix.lower() in (".glb", ".gltf"):
-        return face_asset(load_mesh(path)), str(path)
+    image, camera, source = load_input_image(path, args.camera)
+    detector = landmark_model_for(args.landmarks, args.face_model)
     face_model = None
-    if args.face_model is not None:
+    if args.face_model is not None and args.landmarks is None:  # with --landmarks the detector carries it
         from facemesh.face_models import resolve_face_model
 
         face_model = resolve_face_model(args.face_model)
-    image, camera, source = load_input_image(path, args.camera)
-    detector = landmark_model_for(args.landmarks, args.face_model)
-    fit = fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
-    return face_asset(mesh_for_fit(fit)), source
+    return fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
+
+
+def _face_asset(args: argparse.Namespace, path: Path | None) -> tuple[Any, str]:
+    """The face to render (from a .glb or an image) and its name."""
+    from .augment import face_asset
+    from .pipeline import load_mesh, mesh_for_fit
+
+    if path is not None and path.suffix.lower() in (".glb", ".gltf"):
+        return face_asset(load_mesh(path)), str(path)
+    fit = _fit_input(args, path)
+    return face_asset(mesh_for_fit(fit)), fit.source
 
 
 def _cmd_normalize(args: argparse.Namespace) -> int:
     from .normalize import normalize_image, save_npz
-    from .pipeline import fit_face, landmark_model_for, load_input_image
 
     settings = _settings(args)
-    face_model = None
-    if args.face_model is not None:
-        from facemesh.face_models import resolve_face_model
-
-        face_model = resolve_face_model(args.face_model)
-    image, camera, source = load_input_image(args.image, args.camera)
-    detector = landmark_model_for(args.landmarks, args.face_model)
-    fit = fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
+    fit = _fit_input(args, args.image)
+    image, camera, source = fit.image, fit.camera, fit.source
     sample = normalize_image(
         image,
         camera,

@@ -196,6 +196,12 @@ def eye_cameras(
 ) -> dict[str, NormalizedCamera]:
     """The normalized camera of each eye at a head pose (``{"left": ..., "right": ...}``)."""
     refs = reference_points(head_rotation, head_translation_mm, model_vertices_mm, keypoints)
+    return _eye_cameras_at(refs, head_rotation, settings)
+
+
+def _eye_cameras_at(
+    refs: dict[str, NDArray[np.float64]], head_rotation: ArrayLike, settings: NormalizationSettings
+) -> dict[str, NormalizedCamera]:
     r = np.asarray(head_rotation, dtype=np.float64)
     cams = normalized_cameras(
         np.stack([refs[side] for side in EYES]),
@@ -288,7 +294,8 @@ def normalize_image(
         raise GazeAugError(f"image: expected (H, W, 3) uint8 RGB, got {img.shape} {img.dtype}")
     if camera.image_size != (img.shape[1], img.shape[0]):
         raise GazeAugError(f"camera is for {camera.image_size} images, the image is {(img.shape[1], img.shape[0])}")
-    cams = eye_cameras(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints, s)
+    refs = reference_points(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints)
+    cams = _eye_cameras_at(refs, pose.rotation, s)
     pyr = pyramid if pyramid is not None else build_pyramid(img)
     coords = np.stack([source_coordinates(cams[side], camera) for side in EYES])
     valid = np.ones(coords.shape[:3], dtype=bool)
@@ -303,7 +310,6 @@ def normalize_image(
             head_pose=cam.head_pose_pitchyaw(pose.rotation),
             gaze=None if g is None else cam.gaze_pitchyaw(g),
         )
-    face_centre = reference_points(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints)["face"]
     return NormalizedSample(
         left=eyes["left"],
         right=eyes["right"],
@@ -311,7 +317,7 @@ def normalize_image(
         head_rotation=np.array(pose.rotation),
         source="normalize",
         meta=dict(meta or {}),
-        face=face_labels(face_centre, pose.rotation, s, gaze_target_mm, gaze_vector),
+        face=face_labels(refs["face"], pose.rotation, s, gaze_target_mm, gaze_vector),
     )
 
 

@@ -116,9 +116,9 @@ def fit_face(
 
 
 def mesh_for_fit(fit: FaceFit, settings: BuildSettings = MESH_SETTINGS) -> FaceMesh:
-    """The textured mesh of a fitted face (its own pose re-solved identically by facemesh)."""
+    """The textured mesh of a fitted face, at the fit's pose (not solved again)."""
     return build_face_mesh(
-        fit.image, fit.landmarks, fit.model, fit.camera, settings, extras={"source_image": fit.source}
+        fit.image, fit.landmarks, fit.model, fit.camera, settings, extras={"source_image": fit.source}, pose=fit.pose
     )
 
 

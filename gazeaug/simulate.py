@@ -268,14 +268,9 @@ class SimSubject:
         if face.any():
             tri = self.tri_px[prim[face]]
             px = tri[:, 0] + bary[face, 0:1] * tri[:, 1] + bary[face, 1:2] * tri[:, 2]
-            from .texture import MipPyramid, sample
+            from .texture import remap_bilinear
 
-            n = len(px)
-            cols = 1024
-            pad = (-n) % cols
-            grid = np.concatenate([px, np.zeros((pad, 2), np.float32)]).reshape(1, -1, cols, 2)
-            samp = sample(MipPyramid((self.texture,)), grid, np.ones(grid.shape[:3], bool), antialias=False)
-            out[face] = samp.reshape(-1, 3)[:n]
+            out[face] = remap_bilinear(self.texture, px[:, 0:1], px[:, 1:2]).reshape(-1, 3)
         flat_dirs = dirs.reshape(-1, 3)
         for side, gid in eye_ids.items():
             m = geo == gid

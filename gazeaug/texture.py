@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from .errors import GazeAugError
 
-__all__ = ["MAX_LEVELS", "MipPyramid", "build_pyramid", "level_of_detail", "sample"]
+__all__ = ["MAX_LEVELS", "MipPyramid", "build_pyramid", "level_of_detail", "sample", "remap_bilinear"]
 
 #: Pyramid levels beyond the original (footprints up to 16 source pixels per output pixel).
 MAX_LEVELS = 4
@@ -86,9 +86,21 @@ def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) ->
     return np.log2(np.maximum(foot, np.float32(1.0)))
 
 
-def _remap(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.float32]) -> NDArray[np.float32]:
+def remap_bilinear(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``cv2.remap`` (bilinear, edges replicated) for maps of any number of rows (OpenCV takes < 32767).
+
+    Args:
+        image: (h, w, 3) uint8 source.
+        mx: (R, C) float32 source x of each output pixel.
+        my: (R, C) float32 source y of each output pixel.
+
+    Returns:
+        (R, C, 3) float32.
+    """
     import cv2
 
+    mx = np.ascontiguousarray(mx, dtype=np.float32)
+    my = np.ascontiguousarray(my, dtype=np.float32)
     rows = mx.shape[0]
     out = np.empty(mx.shape + (3,), dtype=np.float32)
     for a in range(0, rows, _MAX_REMAP_ROWS):
@@ -119,7 +131,7 @@ def sample(
     mx = np.ascontiguousarray(coords_px[..., 0].reshape(p * h, w), dtype=np.float32)
     my = np.ascontiguousarray(coords_px[..., 1].reshape(p * h, w), dtype=np.float32)
     if not antialias or len(pyramid.levels) == 1:
-        out = _remap(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
+        out = remap_bilinear(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
     else:
         lod = np.minimum(level_of_detail(coords_px, valid), np.float32(len(pyramid.levels) - 1)).reshape(p * h, w)
         out_flat = np.zeros((p * h, w, 3), dtype=np.float32)
@@ -127,7 +139,7 @@ def sample(
         for level in range(low, high + 1):
             weight = np.maximum(np.float32(1.0) - np.abs(lod - np.float32(level)), np.float32(0.0))
             f = np.float32(2.0**-level)
-            out_flat += weight[..., None] * _remap(pyramid.levels[level], mx * f, my * f)
+            out_flat += weight[..., None] * remap_bilinear(pyramid.levels[level], mx * f, my * f)
         out = out_flat.reshape(p, h, w, 3)
     out[~valid] = 0.0
     return out

@@ -19,6 +19,12 @@ from gazeaug.io_h5 import part_path, read_h5
 from gazeaug.jobs import JobSettings, run_dataset
 
 
+def _p00(mpii_sample):
+    """The real p00 sample's annotation and calibrated camera."""
+    ann = json.loads((mpii_sample / "annotation.json").read_text())
+    return ann, load_camera(mpii_sample / "cameraCalib.xml", image_size=tuple(ann["image_size_wh"]))
+
+
 def _mpii_line(image, lm, rvec, tvec, fc, gt):
     vals = [image, "1200", "300"] + [f"{v:.1f}" for v in lm.ravel()] + [f"{v:.6f}" for v in (*rvec, *tvec, *fc, *gt)]
     return " ".join(vals + ["left"])
@@ -29,8 +35,7 @@ def mpii_root(tmp_path_factory, mpii_sample):
     """pXX layout: two real p00 frames and one image without a face; Camera.mat from the real calibration."""
     import scipy.io
 
-    ann = json.loads((mpii_sample / "annotation.json").read_text())
-    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    ann, cam = _p00(mpii_sample)
     root = tmp_path_factory.mktemp("mpii")
     (root / "p00" / "day01").mkdir(parents=True)
     (root / "p00" / "Calibration").mkdir()
@@ -280,8 +285,7 @@ def _eth_calibration(path, cam):
 @pytest.fixture(scope="module")
 def eth_root(tmp_path_factory, mpii_sample):
     """ETH-XGaze layout with the real p00 frame as camera 00 and, turned upside down, as camera 03."""
-    ann = json.loads((mpii_sample / "annotation.json").read_text())
-    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    ann, cam = _p00(mpii_sample)
     root = tmp_path_factory.mktemp("eth")
     (root / "calibration" / "cam_calibration").mkdir(parents=True)
     frame = root / "data" / "train" / "subject0000" / "frame0000"
@@ -332,8 +336,7 @@ def test_ethxgaze_runs_and_bad_annotations(eth_root, tmp_path):
 def gazecapture_root(tmp_path_factory, mpii_sample):
     import h5py
 
-    ann = json.loads((mpii_sample / "annotation.json").read_text())
-    cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=(1280, 720))
+    ann, cam = _p00(mpii_sample)
     root = tmp_path_factory.mktemp("gc")
     (root / "00002" / "frames").mkdir(parents=True)
     shutil.copy(mpii_sample / ann["image"], root / "00002" / "frames" / "00000.jpg")

@@ -19,7 +19,7 @@ from facemesh.types import CameraIntrinsics
 
 from ..errors import GazeAugError
 
-__all__ = ["GazeSample", "DatasetReader", "DatasetError", "H5ImageRef"]
+__all__ = ["GazeSample", "DatasetReader", "DatasetError", "H5ImageRef", "image_size", "parse_numbers"]
 
 
 class H5ImageRef:
@@ -45,6 +45,28 @@ class H5ImageRef:
 
 class DatasetError(GazeAugError):
     """A dataset file is missing, malformed or inconsistent (the message names the file and line)."""
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file, read from its header only."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return int(im.size[0]), int(im.size[1])
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot read the image's size ({exc})") from exc
+
+
+def parse_numbers(cells: list[str], where: str) -> NDArray[np.float64]:
+    """Annotation cells -> finite float64 array; errors name ``where`` (file and line)."""
+    try:
+        values = np.array([float(c) for c in cells])
+    except ValueError as exc:
+        raise DatasetError(f"{where}: non-numeric value ({exc})") from exc
+    if not np.isfinite(values).all():
+        raise DatasetError(f"{where}: NaN or infinite value")
+    return values
 
 
 @dataclass(frozen=True)

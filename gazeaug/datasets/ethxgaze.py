@@ -28,7 +28,7 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample
+from .base import DatasetError, GazeSample, parse_numbers
 
 __all__ = ["ETHXGaze", "ROTATED_CAMERAS"]
 
@@ -88,12 +88,7 @@ class ETHXGaze:
                 cam_id = int(Path(image_name).stem[3:5])
             except ValueError as exc:
                 raise DatasetError(f"{where}: image name {image_name!r} is not camXX.JPG") from exc
-            try:
-                values = np.array([float(c) for c in cols[2:]])
-            except ValueError as exc:
-                raise DatasetError(f"{where}: non-numeric value ({exc})") from exc
-            if not np.isfinite(values).all():
-                raise DatasetError(f"{where}: NaN or infinite value")
+            values = parse_numbers(cols[2:], where)
             subject = path.stem
             image = self.root / "data" / self.split / subject / frame / image_name
             if not image.is_file():

@@ -36,7 +36,7 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample
+from .base import DatasetError, GazeSample, image_size
 
 __all__ = ["FolderDataset", "LABEL_FILES", "write_labels_csv"]
 
@@ -124,9 +124,7 @@ class FolderDataset:
         if "width" in row and "height" in row and row["width"] not in ("", None):
             size = (int(self._float(row, "width", where)), int(self._float(row, "height", where)))
         else:
-            from .mpiifacegaze import _image_size
-
-            size = _image_size(image)
+            size = image_size(image)
         if row.get("camera") not in (None, ""):
             key = f"{row['camera']}@{size}"
             if key not in self._cameras:

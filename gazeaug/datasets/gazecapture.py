@@ -28,8 +28,7 @@ import numpy as np
 
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample
-from .mpiifacegaze import _image_size
+from .base import DatasetError, GazeSample, image_size
 
 __all__ = ["GazeCapture", "SUPPLEMENTARY_NAME", "REQUIRED"]
 
@@ -106,7 +105,7 @@ class GazeCapture:
                     camera = CameraIntrinsics(
                         matrix=np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64),
                         distortion=np.asarray(a["distortion_parameters"][i], dtype=np.float64),
-                        image_size=_image_size(image),
+                        image_size=image_size(image),
                         source=str(self.supplementary),
                     )
                 except FaceMeshError as exc:

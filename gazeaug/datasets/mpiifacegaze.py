@@ -18,21 +18,11 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample
+from .base import DatasetError, GazeSample, image_size, parse_numbers
 
 __all__ = ["MPIIFaceGaze"]
 
 _COLUMNS = 28
-
-
-def _image_size(path: Path) -> tuple[int, int]:
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            return int(im.size[0]), int(im.size[1])
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: cannot read the image's size ({exc})") from exc
 
 
 class MPIIFaceGaze:
@@ -80,7 +70,7 @@ class MPIIFaceGaze:
             if not path.is_file():
                 raise DatasetError(f"{path}: calibration file not found")
             try:
-                cam = load_camera(path, image_size=_image_size(first_image))
+                cam = load_camera(path, image_size=image_size(first_image))
             except FaceMeshError as exc:
                 raise DatasetError(str(exc)) from exc
             self._cameras[subject] = cam
@@ -89,12 +79,7 @@ class MPIIFaceGaze:
     def __iter__(self) -> Iterator[GazeSample]:
         for index, (subject, lineno, cols) in enumerate(self._rows):
             ann = self.root / subject / f"{subject}.txt"
-            try:
-                values = np.array([float(c) for c in cols[1:27]])
-            except ValueError as exc:
-                raise DatasetError(f"{ann}, line {lineno}: non-numeric value ({exc})") from exc
-            if not np.isfinite(values).all():
-                raise DatasetError(f"{ann}, line {lineno}: NaN or infinite value")
+            values = parse_numbers(cols[1:27], f"{ann}, line {lineno}")
             image = self.root / subject / cols[0]
             if not image.is_file():
                 raise DatasetError(f"{ann}, line {lineno}: image {image} not found")
