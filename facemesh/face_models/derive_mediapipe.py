@@ -1,17 +1,21 @@
 """Derive the built-in MediaPipe-topology face model from inputs anyone can get with pip.
 
 Run ``python -m facemesh.face_models.derive_mediapipe`` to rebuild
-``facemesh/face_models/mediapipe468.npz``. The inputs are two public-domain
-photos that ship inside installed wheels (scikit-image's ``astronaut`` and
-matplotlib's ``sample_data/grace_hopper.jpg``) and MediaPipe's own 3D landmark
-output on them; the triangulation comes from the ``FACEMESH_TESSELATION`` edge
-list inside the mediapipe wheel. MediaPipe's canonical face model is *not*
-used (the tests compare against it).
+``facemesh/face_models/mediapipe468.npz``. The inputs are face photos that
+ship inside installed wheels and MediaPipe's own 3D landmark output on them:
+the two public-domain portraits (scikit-image's ``astronaut`` and
+matplotlib's ``sample_data/grace_hopper.jpg``) and the 100 face crops of
+scikit-image's ``lfw_subset`` (25 x 25 grey crops from Labeled Faces in the
+Wild, 100 different people). The triangulation comes from the
+``FACEMESH_TESSELATION`` edge list inside the mediapipe wheel. MediaPipe's
+canonical face model is *not* used (the tests compare against it).
 
 Steps:
-1. MediaPipe Face Mesh (with iris refinement) on each photo; each face's 478
-   points as (x_px, y_px, z * W): x right, y down, z away from the camera,
-   which is the head frame's axis directions for a face looking at the camera.
+1. MediaPipe Face Mesh (with iris refinement) on each photo (the LFW crops
+   enlarged 8x with bicubic interpolation and a 50 px replicated border, so the
+   face detector finds them; 98 of 100 are found); each face's 478 points as
+   (x_px, y_px, z * W): x right, y down, z away from the camera, which is the
+   head frame's axis directions for a face looking at the camera.
 2. Generalised Procrustes alignment (similarity), then the mean shape.
 3. Left-right symmetry: mirror the mean (x -> -x), find each point's mirror
    partner by optimal assignment, refined by rigid alignment; the model is the
@@ -61,17 +65,55 @@ def wheel_photos() -> dict[str, NDArray[np.uint8]]:
     }
 
 
-def landmark_shapes(photos: dict[str, NDArray[np.uint8]]) -> list[NDArray[np.float64]]:
-    """MediaPipe's (478, 3) 3D landmarks of the largest face in each photo."""
+#: How the 25 x 25 LFW crops are enlarged before detection.
+LFW_UPSCALE = 8
+LFW_BORDER_PX = 50
+
+
+def lfw_photos() -> dict[str, NDArray[np.uint8]]:
+    """The 100 face crops of scikit-image's ``lfw_subset``, enlarged, as RGB uint8.
+
+    ``skimage.data.lfw_subset()`` is (200, 25, 25) float in [0, 1]: 100 faces,
+    then 100 non-faces. Each face is enlarged ``LFW_UPSCALE`` times (bicubic)
+    and padded by ``LFW_BORDER_PX`` replicated pixels.
+    """
+    import cv2
+    import skimage.data
+
+    crops = np.asarray(skimage.data.lfw_subset())[:100]
+    out = {}
+    for i, crop in enumerate(crops):
+        grey = np.clip(np.rint(crop * 255.0), 0, 255).astype(np.uint8)
+        grey = cv2.resize(grey, None, fx=LFW_UPSCALE, fy=LFW_UPSCALE, interpolation=cv2.INTER_CUBIC)
+        grey = cv2.copyMakeBorder(grey, *(LFW_BORDER_PX,) * 4, cv2.BORDER_REPLICATE)
+        out[f"skimage.data.lfw_subset[{i}]"] = np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2))
+    return out
+
+
+def landmark_shapes(
+    photos: dict[str, NDArray[np.uint8]], *, required: bool = True
+) -> tuple[list[str], list[NDArray[np.float64]]]:
+    """MediaPipe's (478, 3) 3D landmarks of the largest face in each photo.
+
+    Returns the names of the photos used and their shapes. With
+    ``required=False`` photos where no face is found are left out.
+    """
+    from ..types import NoFaceError
     from ..landmarks import MediaPipeFaceMesh, select_face
 
-    shapes = []
+    names, shapes = [], []
     with MediaPipeFaceMesh(refine_landmarks=True) as det:
         for name, img in photos.items():
-            face = select_face(det.detect(img), source=name)
+            try:
+                face = select_face(det.detect(img), source=name)
+            except NoFaceError:
+                if required:
+                    raise
+                continue
             assert face.points_3d is not None
+            names.append(name)
             shapes.append(np.asarray(face.points_3d))
-    return shapes
+    return names, shapes
 
 
 def procrustes_mean(shapes: list[NDArray[np.float64]], iterations: int = 10) -> NDArray[np.float64]:
@@ -155,8 +197,10 @@ def derive() -> dict[str, NDArray[np.generic]]:
     """Run all steps; returns the arrays stored in ``mediapipe468.npz``."""
     from ..landmarks.mediapipe import import_mediapipe_face_mesh
 
-    photos = wheel_photos()
-    shapes = landmark_shapes(photos)
+    names, shapes = landmark_shapes(wheel_photos())
+    lfw_names, lfw_shapes = landmark_shapes(lfw_photos(), required=False)
+    names += lfw_names
+    shapes += lfw_shapes
     # The 468 mesh points and the two iris centres (the ring around each iris
     # is left out: it only follows the eye).
     keep = list(range(NUM_MESH_POINTS)) + list(IRIS_CENTRES)
@@ -171,7 +215,7 @@ def derive() -> dict[str, NDArray[np.generic]]:
         "vertices_mm": head[:NUM_MESH_POINTS].astype(np.float64),
         "triangles": triangles.astype(np.int64),
         "mirror": perm468,
-        "sources": np.array(list(photos)),
+        "sources": np.array(names),
     }
 
 
