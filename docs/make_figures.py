@@ -1,4 +1,6 @@
-"""Draw the convention figure of docs/conventions.md: ``python docs/make_figures.py`` writes docs/img/pitch_convention.png.
+"""Draw the convention figure of docs/conventions.md.
+
+``python docs/make_figures.py`` writes docs/img/pitch_convention.png.
 
 Drawn from the conventions module itself (the face direction of a head pose
 pitch of +30 deg), not by hand, so the picture cannot disagree with the code.

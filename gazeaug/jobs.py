@@ -1,7 +1,8 @@
 """Dataset runs: ``augment`` (K renders per sample at drawn head poses) and ``normalize-dataset`` (the baseline).
 
 Every input sample goes through the same stages: read the image, detect the
-landmarks (MediaPipe), solve the pose; then either normalize the real image
+landmarks (MediaPipe), solve the pose (or, for datasets that ship a face mesh
+and head pose, UT Multiview, take theirs); then either normalize the real image
 (``normalize-dataset``) or build the face mesh and render its eyes at K head
 poses drawn from the distribution (``augment``). Rows go to an HDF5 file
 (:mod:`gazeaug.io_h5`) in dataset order, whatever the number of workers.
@@ -116,7 +117,7 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
     from facemesh.types import InputError, NoFaceError
 
     from .augment import face_asset, render_poses, sampled_placement
-    from .pipeline import fit_face, mesh_for_fit
+    from .pipeline import dataset_mesh, fit_face, fit_from_dataset, mesh_for_fit
 
     s: JobSettings = _STATE["settings"]
     idx = sample.source_index
@@ -135,7 +136,10 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
             f"is for {sample.camera.image_size[0]}x{sample.camera.image_size[1]}"
         )
     try:
-        fit = fit_face(image, sample.camera, _STATE["detector"], source=str(sample.image_path))
+        if sample.mesh_path is not None:  # the dataset's own mesh and pose (UT Multiview)
+            fit = fit_from_dataset(sample, image)
+        else:
+            fit = fit_face(image, sample.camera, _STATE["detector"], source=str(sample.image_path))
     except NoFaceError as exc:
         return skip(f"no face: {exc}")
     except (PoseError, GazeAugError, InputError) as exc:
@@ -158,7 +162,8 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
                 )
             ]
         else:
-            asset = face_asset(mesh_for_fit(fit))
+            mesh = dataset_mesh(fit, sample) if sample.mesh_path is not None else mesh_for_fit(fit)
+            asset = face_asset(mesh)
             scene = _STATE["renderer"].scene(asset.render_mesh)
             yp = s.distribution.sample(s.per_sample, np.random.default_rng([s.seed, idx]))
             places = [sampled_placement(asset, y, p) for y, p in yp]

@@ -13,13 +13,15 @@ from numpy.typing import NDArray
 
 from facemesh.build import SAMPLE_NAME, sample_image
 from facemesh.camera import camera_for_image, load_camera
+from facemesh.conventions import pixels_to_uv
 from facemesh.face_models import FaceKeypoints, keypoints_for, resolve_face_model
 from facemesh.io import load_image_rgb
 from facemesh.landmarks.base import LandmarkModel, select_face
-from facemesh.mesh import BuildSettings, build_face_mesh
-from facemesh.pose import solve_head_pose
+from facemesh.mesh import BuildSettings, build_face_mesh, crop_texture
+from facemesh.pose import project_points, solve_head_pose
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose
 
+from .datasets.base import DatasetError, GazeSample
 from .errors import GazeAugError
 
 __all__ = [
@@ -30,6 +32,9 @@ __all__ = [
     "fit_face",
     "mesh_for_fit",
     "load_mesh",
+    "fit_from_dataset",
+    "dataset_mesh",
+    "load_obj_mesh",
 ]
 
 #: Mesh settings for augmentation: a wider texture margin than facemesh's
@@ -127,3 +132,124 @@ def load_mesh(path: str | Path) -> FaceMesh:
     from facemesh.gltf import load_glb
 
     return load_glb(path)
+
+
+#: Name of the 6-point layout of a dataset's own 3D landmarks (UT Multiview).
+DATASET_LANDMARKS = "dataset6"
+
+
+def fit_from_dataset(sample: GazeSample, image: NDArray[np.uint8]) -> FaceFit:
+    """The face as the dataset describes it (its head pose and 3D landmarks), nothing detected.
+
+    For samples with ``landmarks_3d_mm`` (six points: the subject's right eye's
+    two corners, the left eye's two, the mouth's two) and a head pose. The
+    face model is those six points in the head frame, re-centred between the
+    eyes (the head frame's origin in this package), so eye centres and the
+    normalized cameras come from the dataset's own landmarks.
+
+    Raises:
+        DatasetError: no 3D landmarks or head pose, or a head frame whose axes do
+            not follow the convention (x toward the subject's left eye, y toward the chin).
+    """
+    where = f"sample {sample.source_index} ({sample.image_path})"
+    if sample.landmarks_3d_mm is None or sample.head_rotation is None or sample.head_translation_mm is None:
+        raise DatasetError(f"{where}: the dataset gives no 3D landmarks and head pose")
+    marks = np.asarray(sample.landmarks_3d_mm, dtype=np.float64)
+    if marks.shape != (6, 3):
+        raise DatasetError(f"{where}: 3D landmarks: expected (6, 3), got {marks.shape}")
+    r, t = np.asarray(sample.head_rotation), np.asarray(sample.head_translation_mm)
+    head = (marks - t) @ r  # head frame
+    kp = keypoints_for(6)
+    right, left = head[list(kp.right_eye)].mean(axis=0), head[list(kp.left_eye)].mean(axis=0)
+    mid = 0.5 * (right + left)
+    eye_line = (left - right) / max(float(np.linalg.norm(left - right)), 1e-9)
+    down = head[[4, 5]].mean(axis=0) - mid  # the mouth corners
+    down /= max(float(np.linalg.norm(down)), 1e-9)
+    if eye_line[0] < np.cos(np.radians(30)) or down[1] < np.cos(np.radians(45)):
+        raise DatasetError(
+            f"{where}: the dataset's head rotation does not follow the head-frame convention "
+            f"(x toward the subject's left eye, y toward the chin): in its frame the eye line points "
+            f"{np.round(eye_line, 3).tolist()} and the mouth lies toward {np.round(down, 3).tolist()}"
+        )
+    model = FaceModel(DATASET_LANDMARKS, head - mid)
+    pose = HeadPose(r, t + r @ mid)
+    landmarks = FaceLandmarks(project_points(marks, sample.camera), DATASET_LANDMARKS)
+    return FaceFit(image, sample.camera, landmarks, model, pose, kp, str(sample.image_path))
+
+
+_OBJ_CACHE: dict[str, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
+
+
+def load_obj_mesh(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Vertices and triangles of an OBJ file, in file order (nothing merged; the last file is cached).
+
+    Returns:
+        ``(vertices, triangles)``: (V, 3) float64 in the file's units and frame; (T, 3) int64.
+
+    Raises:
+        DatasetError: missing, unreadable or empty file.
+    """
+    key = str(path)
+    if key in _OBJ_CACHE:
+        return _OBJ_CACHE[key]
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"{p}: mesh file not found")
+    import trimesh
+
+    try:
+        mesh = trimesh.load(p, file_type="obj", process=False, maintain_order=True, force="mesh", skip_materials=True)
+    except Exception as exc:  # trimesh raises many kinds on malformed files
+        raise DatasetError(f"{p}: cannot read the mesh ({exc})") from exc
+    v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    if len(v) < 3 or len(f) < 1 or not np.isfinite(v).all():
+        raise DatasetError(f"{p}: no usable triangles (vertices {len(v)}, faces {len(f)})")
+    _OBJ_CACHE.clear()
+    _OBJ_CACHE[key] = (v, f)
+    return v, f
+
+
+def dataset_mesh(fit: FaceFit, sample: GazeSample, settings: BuildSettings = MESH_SETTINGS) -> FaceMesh:
+    """The dataset's own face mesh of this capture, textured from this sample's image.
+
+    The mesh (``sample.mesh_path``, mm, moved into this camera's frame by
+    ``sample.mesh_to_camera``) is projected into the image: each vertex's
+    texture coordinate is where the camera sees it, as for meshes built from
+    landmarks (parts hidden from this camera take the colour of what hides them).
+
+    Raises:
+        DatasetError: the mesh is missing or unreadable, or its size is not that of a face in mm.
+    """
+    if sample.mesh_path is None or sample.mesh_to_camera is None:
+        raise DatasetError(f"sample {sample.source_index} ({sample.image_path}): no dataset mesh")
+    v, tri = load_obj_mesh(sample.mesh_path)
+    m = np.asarray(sample.mesh_to_camera)
+    v = v @ m[:, :3].T + m[:, 3]
+    extent = float(np.ptp(v, axis=0).max())
+    if not 50.0 <= extent <= 1000.0:
+        raise DatasetError(f"{sample.mesh_path}: the mesh spans {extent:.3g} units; expected a face in millimetres")
+    if (v[:, 2] <= 0).any():
+        raise DatasetError(f"{sample.mesh_path}: part of the mesh lies behind camera {sample.camera.source}")
+    # triangles toward the camera (normals point to the camera at the origin)
+    n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    if np.einsum("ij,ij->", n, v[tri[:, 0]]) > 0:
+        tri = tri[:, [0, 2, 1]]
+    px = project_points(v, sample.camera)
+    texture, origin = crop_texture(fit.image, FaceLandmarks(px, "dataset_mesh"), settings.texture_margin)
+    uv = pixels_to_uv(px, origin, (texture.shape[1], texture.shape[0]))
+    return FaceMesh(
+        vertices_mm=v,
+        triangles=tri,
+        uv=uv,
+        texture=texture,
+        texture_origin_px=origin,
+        landmarks=fit.landmarks,
+        camera=fit.camera,
+        pose=fit.pose,
+        face_model_name=DATASET_LANDMARKS,
+        vertex_placement="dataset",
+        reconstruction={"method": "dataset", "mesh": str(sample.mesh_path)},
+        extras={"source_image": fit.source},
+        model_vertices_mm=fit.model.vertices_mm,
+    )

@@ -155,13 +155,11 @@ def test_folder_bad_labels(folder_root, tmp_path, text, message):
     assert "labels.csv" in str(err.value)
 
 
-def test_format_detection_and_planned_readers(tmp_path, folder_root):
+def test_format_detection(tmp_path):
     with pytest.raises(DatasetError, match="cannot tell"):
         detect_format(tmp_path)
     with pytest.raises(DatasetError, match="not a folder"):
         detect_format(tmp_path / "nothing")
-    with pytest.raises(DatasetError, match="utmultiview reader is not in this version"):
-        open_dataset(folder_root, "utmultiview")
 
 
 def test_augment_writes_the_schema_and_skips_faceless_images(mpii_root, tmp_path):

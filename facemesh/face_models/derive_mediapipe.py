@@ -98,8 +98,8 @@ def landmark_shapes(
     Returns the names of the photos used and their shapes. With
     ``required=False`` photos where no face is found are left out.
     """
-    from ..types import NoFaceError
     from ..landmarks import MediaPipeFaceMesh, select_face
+    from ..types import NoFaceError
 
     names, shapes = [], []
     with MediaPipeFaceMesh(refine_landmarks=True) as det:

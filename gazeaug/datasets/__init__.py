@@ -10,10 +10,11 @@
     ETH-XGaze's normalized ``subjectXXXX.h5`` release (face patches as images of the normalized camera).
 ``gazecapture``
     GazeCapture with its supplementary HDF5 (intrinsics, head pose, 3D gaze targets).
+``utmultiview``
+    UT Multiview's raw part (8 cameras per capture, a reconstructed face mesh per capture;
+    :mod:`gazeaug.datasets.utmultiview`).
 ``folder``
     your own data: images plus ``labels.csv`` or ``labels.jsonl`` (:mod:`gazeaug.datasets.folder`).
-
-UTMultiview (with its reconstructed meshes) is planned; asking for it says so.
 """
 
 from __future__ import annotations
@@ -26,12 +27,12 @@ from .ethxgaze_normalized import ETHXGazeNormalized, looks_like_ethxgaze_normali
 from .folder import LABEL_FILES, FolderDataset
 from .gazecapture import SUPPLEMENTARY_NAME, GazeCapture
 from .mpiifacegaze import MPIIFaceGaze
+from .utmultiview import UTMultiview, looks_like_utmultiview
 
 __all__ = ["FORMATS", "open_dataset", "detect_format", "DatasetError", "DatasetReader", "GazeSample"]
 
-#: Formats :func:`open_dataset` knows (utmultiview: not in this version).
+#: Formats :func:`open_dataset` knows.
 FORMATS = ("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder")
-_PLANNED = ("utmultiview",)
 
 
 def detect_format(path: str | Path) -> str:
@@ -51,11 +52,13 @@ def detect_format(path: str | Path) -> str:
         return "ethxgaze"
     if looks_like_ethxgaze_normalized(p):
         return "ethxgaze_normalized"
+    if looks_like_utmultiview(p):
+        return "utmultiview"
     if any(d.is_dir() and (d / f"{d.name}.txt").is_file() for d in p.iterdir()):
         return "mpiifacegaze"
     raise DatasetError(
         f"{p}: cannot tell the dataset format (no {' / '.join(LABEL_FILES)}, no pXX/pXX.txt, "
-        f"no {SUPPLEMENTARY_NAME}, no data/annotation_train/); pass --format"
+        f"no {SUPPLEMENTARY_NAME}, no data/annotation_train/, no sNN/raw/gazedata.csv); pass --format"
     )
 
 
@@ -72,9 +75,6 @@ def open_dataset(path: str | Path, format: str | None = None) -> DatasetReader: 
         return GazeCapture(path)
     if fmt == "ethxgaze_normalized":
         return ETHXGazeNormalized(path)
-    if fmt in _PLANNED:
-        raise DatasetError(
-            f"the {fmt} reader is not in this version yet "
-            f"(readers: {', '.join(f for f in FORMATS if f not in _PLANNED)})"
-        )
+    if fmt == "utmultiview":
+        return UTMultiview(path)
     raise DatasetError(f"format: expected one of {FORMATS}, got {fmt!r}")

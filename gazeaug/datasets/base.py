@@ -92,6 +92,12 @@ class GazeSample:
             3, 6 and 13 were mounted upside down; their labels refer to the turned image).
         image_ref: where the image is when it is not a file of its own (an HDF5 row); then
             ``image_path`` names the container, for messages.
+        landmarks_3d_mm: (L, 3) float64, mm, camera frame: the dataset's own 3D landmarks
+            (UT Multiview: right eye's two corners, left eye's two, mouth's two), or ``None``.
+        mesh_path: a face mesh of this capture shipped with the dataset (UT Multiview's
+            reconstructions), used instead of building one from detected landmarks; or ``None``.
+        mesh_to_camera: (3, 4) float64 ``[R | t]``, mm: the mesh's frame -> this camera's frame
+            (``p_cam = R p_mesh + t``); required with ``mesh_path``.
         extras: anything else the reader wants to keep (JSON-serialisable).
     """
 
@@ -108,6 +114,9 @@ class GazeSample:
     face_model_mm: NDArray[np.float64] | None = None
     rotate_180: bool = False
     image_ref: H5ImageRef | None = None
+    landmarks_3d_mm: NDArray[np.float64] | None = None
+    mesh_path: Path | None = None
+    mesh_to_camera: NDArray[np.float64] | None = None
     extras: Mapping[str, Any] = field(default_factory=dict)
 
     def load_image(self) -> NDArray[np.uint8]:
@@ -125,6 +134,7 @@ class GazeSample:
             ("gaze_origin_mm", (3,)),
             ("head_rotation", (3, 3)),
             ("head_translation_mm", (3,)),
+            ("mesh_to_camera", (3, 4)),
         ):
             v = getattr(self, name)
             if v is None:
@@ -145,7 +155,16 @@ class GazeSample:
             g = np.asarray(self.gaze_vector) / n
             g.setflags(write=False)
             object.__setattr__(self, "gaze_vector", g)
-        for name, cols in (("landmarks_px", 2), ("face_model_mm", 3)):
+        if self.mesh_path is not None:
+            object.__setattr__(self, "mesh_path", Path(self.mesh_path))
+            if self.mesh_to_camera is None or self.head_rotation is None or self.head_translation_mm is None:
+                raise DatasetError(
+                    f"sample {self.source_index} ({self.image_path}): a dataset mesh needs mesh_to_camera "
+                    "and the head pose"
+                )
+            if self.landmarks_3d_mm is None:
+                raise DatasetError(f"sample {self.source_index} ({self.image_path}): a dataset mesh needs 3D landmarks")
+        for name, cols in (("landmarks_px", 2), ("face_model_mm", 3), ("landmarks_3d_mm", 3)):
             v = getattr(self, name)
             if v is None:
                 continue
