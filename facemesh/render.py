@@ -78,11 +78,12 @@ class RaycastScene:
         self._uv = np.asarray(uv, dtype=np.float64)
         self._texture = np.ascontiguousarray(texture)
         th, tw = self._texture.shape[:2]
-        # per triangle: first corner's texture pixel and the edges to the other two, gathered once per hit
+        # per triangle: first corner's texture pixel and the edges to the other two, gathered once per hit;
+        # (2, M): x row and y row
         corners = uv_to_pixels(self._uv, (tw, th))[self._triangles.astype(np.int64)]
-        self._c0 = corners[:, 0].astype(np.float32)
-        self._e1 = (corners[:, 1] - corners[:, 0]).astype(np.float32)
-        self._e2 = (corners[:, 2] - corners[:, 0]).astype(np.float32)
+        self._c0 = np.ascontiguousarray(corners[:, 0].T, dtype=np.float32)
+        self._e1 = np.ascontiguousarray((corners[:, 1] - corners[:, 0]).T, dtype=np.float32)
+        self._e2 = np.ascontiguousarray((corners[:, 2] - corners[:, 0]).T, dtype=np.float32)
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
         #: Embree threads per cast (0: all cores). One per process is faster when several processes render.
@@ -125,7 +126,6 @@ class RaycastScene:
             float32 ray parameter of the hit (distance in units of the
             direction's length; inf where nothing was hit).
         """
-        o3d = import_open3d()
         o = np.asarray(origins_mm, dtype=np.float32)
         d = np.asarray(directions, dtype=np.float32)
         shape = np.broadcast_shapes(o.shape, d.shape)
@@ -134,18 +134,35 @@ class RaycastScene:
         rays = np.empty(shape[:-1] + (6,), dtype=np.float32)
         rays[..., :3] = o
         rays[..., 3:] = d
-        ans = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays.reshape(-1, 6)), nthreads=self.threads)
+        return self.trace_rays(rays)
+
+    def trace_rays(self, rays: ArrayLike) -> tuple[NDArray[np.bool_], NDArray[np.float32], NDArray[np.float32]]:
+        """:meth:`trace` for rays already packed as (..., 6) float32 ``(origin xyz, direction xyz)``."""
+        o3d = import_open3d()
+        r = np.asarray(rays, dtype=np.float32)
+        if r.ndim < 1 or r.shape[-1] != 6:
+            raise InputError(f"rays: expected (..., 6) origins and directions, got {r.shape}")
+        shape = r.shape[:-1]
+        ans = self._scene.cast_rays(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(r).reshape(-1, 6)), nthreads=self.threads
+        )
         prim = ans["primitive_ids"].numpy()
         bary = ans["primitive_uvs"].numpy()
         hit = prim != self._scene.INVALID_ID
-        # texture position = corner 0 + b1 edge 1 + b2 edge 2 of the hit triangle (misses: clipped, then zeroed)
+        # texture position = corner 0 + b1 edge 1 + b2 edge 2 of the hit triangle (misses: clipped, then zeroed),
+        # one coordinate at a time from (2, M) tables (contiguous gathers)
         idx = prim.astype(np.int64)
-        px = np.take(self._c0, idx, axis=0, mode="clip")
-        px += bary[:, 0:1] * np.take(self._e1, idx, axis=0, mode="clip")
-        px += bary[:, 1:2] * np.take(self._e2, idx, axis=0, mode="clip")
+        b1, b2 = bary[:, 0], bary[:, 1]
+        px = np.empty((len(idx), 2), dtype=np.float32)
+        for k in range(2):
+            px[:, k] = (
+                np.take(self._c0[k], idx, mode="clip")
+                + b1 * np.take(self._e1[k], idx, mode="clip")
+                + b2 * np.take(self._e2[k], idx, mode="clip")
+            )
         px[~hit] = 0.0
         t_hit = ans["t_hit"].numpy()
-        return hit.reshape(shape[:-1]), px.reshape(shape[:-1] + (2,)), t_hit.reshape(shape[:-1])
+        return hit.reshape(shape), px.reshape(shape + (2,)), t_hit.reshape(shape)
 
     def render(
         self,

@@ -33,7 +33,7 @@ from facemesh.types import FaceMesh
 
 from .camera import normalized_cameras
 from .errors import GazeAugError
-from .normalize import EYES, EyePatch, NormalizationSettings, NormalizedSample, face_labels
+from .normalize import EYES, EyePatch, FaceLabels, NormalizationSettings, NormalizedSample
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 __all__ = ["FaceAsset", "face_asset", "HeadPlacement", "sampled_placement", "source_placement", "render_poses"]
@@ -173,22 +173,26 @@ def render_poses(
     rot = np.stack([p.rotation for p in placements])  # (P, 3, 3) head -> application camera
     trans = np.stack([p.translation_mm for p in placements])  # (P, 3)
     kp, model = asset.keypoints, asset.model_vertices_mm
-    eyes_head = np.stack([model[list(kp.eye(side))].mean(axis=0) for side in EYES])  # (2, 3)
-    refs = np.einsum("pij,ej->pei", rot, eyes_head) + trans[:, None, :]  # (P, 2, 3)
+    # reference points in the head frame: left eye, right eye, face centre
+    points_head = np.stack(
+        [model[list(kp.eye(side))].mean(axis=0) for side in EYES] + [model[list(kp.face_indices)].mean(axis=0)]
+    )  # (3, 3)
+    refs = np.einsum("pij,ej->pei", rot, points_head) + trans[:, None, :]  # (P, 3, 3)
     cams = normalized_cameras(
         refs.reshape(-1, 3),
-        np.repeat(rot, 2, axis=0),
+        np.repeat(rot, 3, axis=0),
         distance_mm=s.distance_mm,
         focal_px=s.focal_px,
         size_wh=s.patch_size_wh,
-    )
+    )  # per placement: left eye, right eye, face
+    eye_cams = [c for k, c in enumerate(cams) if k % 3 != 2]
     a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
     b = trans - np.einsum("pij,j->pi", a, t_h)
-    views = [View(camera=cams[k], rotation=a[k // 2], translation_mm=b[k // 2]) for k in range(len(cams))]
+    views = [View(camera=eye_cams[k], rotation=a[k // 2], translation_mm=b[k // 2]) for k in range(len(eye_cams))]
     out = scene.render(views)
-    # labels, all eyes at once, exactly as normalization computes them
-    r_norm = np.stack([c.rotation for c in cams]).reshape(-1, 2, 3, 3)
-    head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])  # (P, 2, 2)
+    # labels of all eyes and faces at once, exactly as normalization computes them
+    r_norm = np.stack([c.rotation for c in cams]).reshape(-1, 3, 3, 3)
+    head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])  # (P, 3, 2)
     gaze = None
     if target_head is not None or vector_head is not None:
         if target_head is not None:
@@ -198,17 +202,14 @@ def render_poses(
         norms = np.linalg.norm(g, axis=-1, keepdims=True)
         if (norms < 1e-9).any():
             raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye)")
-        gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))
-    face_head = model[list(kp.face_indices)].mean(axis=0)
+        gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))  # (P, 3, 2)
     samples = []
     for i, place in enumerate(placements):
-        target = None if target_head is None else place.rotation @ target_head + place.translation_mm
-        vector = None if vector_head is None else place.rotation @ vector_head
-        face = face_labels(place.rotation @ face_head + place.translation_mm, place.rotation, s, target, vector)
+        face = FaceLabels(camera=cams[3 * i + 2], head_pose=head[i, 2], gaze=None if gaze is None else gaze[i, 2])
         eyes = {
             side: EyePatch(
                 image=out.images[2 * i + j],
-                camera=cams[2 * i + j],
+                camera=eye_cams[2 * i + j],
                 head_pose=head[i, j],
                 gaze=None if gaze is None else gaze[i, j],
                 coverage=float(out.coverage[2 * i + j]),

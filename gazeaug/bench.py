@@ -73,7 +73,8 @@ def bench_render(
     A new face scene is built every ``per_face`` samples, cycling through
     ``assets`` (so scene building and texture upload count as a dataset brings
     new faces); poses come from the default head-pose distribution, rendered
-    ``batch`` samples per call, split over ``workers`` processes. Mesh building
+    ``batch`` samples per call, split over ``workers`` processes (each casting
+    with one Embree thread when there are several). Mesh building
     (landmarks, PnP) and process start-up are not included.
 
     Returns:
@@ -98,7 +99,7 @@ def bench_render(
             list(pool.map(_warm, [assets] * len(chunks), [renderer] * len(chunks), [s] * len(chunks)))
             t0 = time.perf_counter()
             futures = [
-                pool.submit(_render_chunk, assets, renderer, c, per_face, batch, s, i, 0) for i, c in enumerate(chunks)
+                pool.submit(_render_chunk, assets, renderer, c, per_face, batch, s, i, 1) for i, c in enumerate(chunks)
             ]
             faces = sum(f.result() for f in futures)
             dt = time.perf_counter() - t0

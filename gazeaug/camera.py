@@ -174,12 +174,26 @@ def normalized_cameras(
     right = np.cross(down, forward)
     right /= np.linalg.norm(right, axis=1, keepdims=True)
     rot = np.stack([right, down, forward], axis=1)
-    return [
-        NormalizedCamera(
-            rotation=rot[i], reference_mm=e[i], distance_mm=float(distance_mm), focal_px=float(focal_px), size_wh=(w, h)
-        )
-        for i in range(len(e))
-    ]
+    rot.setflags(write=False)
+    e = e.copy()
+    e.setflags(write=False)
+    return [_built_camera(rot[i], e[i], float(distance_mm), float(focal_px), (w, h)) for i in range(len(e))]
+
+
+def _built_camera(
+    rotation: NDArray[np.float64], reference_mm: NDArray[np.float64], d: float, f: float, wh: tuple[int, int]
+) -> NormalizedCamera:
+    """A camera whose fields were built and checked by :func:`normalized_cameras` (no copies, no re-checks)."""
+    cam = object.__new__(NormalizedCamera)
+    for name, value in (
+        ("rotation", rotation),
+        ("reference_mm", reference_mm),
+        ("distance_mm", d),
+        ("focal_px", f),
+        ("size_wh", wh),
+    ):
+        object.__setattr__(cam, name, value)
+    return cam
 
 
 def normalized_camera(

@@ -99,8 +99,11 @@ class SampleOutcome:
 _STATE: dict[str, Any] = {}
 
 
-def _worker_init(settings: JobSettings) -> None:
-    """Per-process state: one landmark detector and one renderer, reused for every sample."""
+def _worker_init(settings: JobSettings, threads: int = 0) -> None:
+    """Per-process state: one landmark detector and one renderer, reused for every sample.
+
+    ``threads``: Embree threads per ray cast (0: all cores; 1 when several worker processes share the cores).
+    """
     from .pipeline import landmark_model_for
 
     _STATE["settings"] = settings
@@ -108,7 +111,8 @@ def _worker_init(settings: JobSettings) -> None:
     if settings.kind == "augment":
         from .render import create_renderer
 
-        _STATE["renderer"] = create_renderer(settings.renderer, settings=settings.normalization)
+        options = {"threads": threads} if settings.renderer == "raycast" else {}
+        _STATE["renderer"] = create_renderer(settings.renderer, settings=settings.normalization, **options)
 
 
 def process_sample(sample: GazeSample) -> SampleOutcome:
@@ -193,7 +197,7 @@ def _outcomes(samples: Iterator[GazeSample], settings: JobSettings, workers: int
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_worker_init, initargs=(settings,)) as pool:
+    with ctx.Pool(workers, initializer=_worker_init, initargs=(settings, 1)) as pool:
         yield from pool.imap(process_sample, samples, chunksize=1)
 
 

@@ -12,6 +12,13 @@ Level ``l`` is ``cv2.pyrDown`` applied ``l`` times; its pixel ``j`` is centred
 on level-0 position ``2**l * j``. The footprint of an output pixel is the
 larger of the lengths of the source position's steps to the neighbouring
 output pixels (the GPU rule); ``lod = log2(footprint)``, clipped to the levels.
+
+For speed, the levels are also packed side by side into one float32 atlas
+(each with a one-pixel replicated border), so a trilinear lookup is two
+``cv2.remap`` calls (the lower and the upper level of every pixel) and one
+blend, however many levels the pixels of a batch span. Positions are clamped
+to level 0's pixel centres; on every level that lands within the level or on
+its replicated border, which is what ``BORDER_REPLICATE`` gives.
 """
 
 from __future__ import annotations
@@ -38,9 +45,17 @@ class MipPyramid:
 
     Attributes:
         levels: level 0 is the (h, w, 3) uint8 RGB image; level l is about (h / 2**l, w / 2**l, 3).
+        atlas: (h + 2, sum(w_l + 2), 3) float32: the levels side by side, each with a
+            one-pixel replicated border; level l's pixel (x, y) is atlas pixel
+            (x + offsets_x[l], y + 1).
+        offsets_x: (L,) float32 atlas column of each level's pixel x = 0.
+        limits: (L, 2) float32 ``(w_l - 1, h_l - 1)``: each level's last pixel centre.
     """
 
     levels: tuple[NDArray[np.uint8], ...]
+    atlas: NDArray[np.float32]
+    offsets_x: NDArray[np.float32]
+    limits: NDArray[np.float32]
 
 
 def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) -> MipPyramid:
@@ -53,7 +68,21 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
     levels: list[NDArray[np.uint8]] = [img]
     while len(levels) <= max_levels and min(levels[-1].shape[:2]) >= 8:
         levels.append(np.asarray(cv2.pyrDown(levels[-1]), dtype=np.uint8))
-    return MipPyramid(levels=tuple(levels))
+    h0 = img.shape[0]
+    atlas = np.zeros((h0 + 2, sum(lv.shape[1] + 2 for lv in levels), 3), dtype=np.float32)
+    offsets, limits, x = [], [], 0
+    for lv in levels:
+        h, w = lv.shape[:2]
+        atlas[: h + 2, x : x + w + 2] = cv2.copyMakeBorder(lv, 1, 1, 1, 1, cv2.BORDER_REPLICATE)
+        offsets.append(x + 1)
+        limits.append((w - 1, h - 1))
+        x += w + 2
+    return MipPyramid(
+        levels=tuple(levels),
+        atlas=atlas,
+        offsets_x=np.asarray(offsets, dtype=np.float32),
+        limits=np.asarray(limits, dtype=np.float32),
+    )
 
 
 def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[np.float32]:
@@ -70,27 +99,31 @@ def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) ->
         (P, H, W) float32 ``log2`` of the footprint, >= 0 (0 for pixels without a valid neighbour).
     """
     c = np.asarray(coords_px, dtype=np.float32)
-    foot = np.zeros(valid.shape, dtype=np.float32)
-    for axis in (1, 2):
-        d = np.diff(c, axis=axis)
-        length = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
-        n = valid.shape[axis]
-        both = np.take(valid, np.arange(1, n), axis=axis) & np.take(valid, np.arange(0, n - 1), axis=axis)
-        length = np.where(both, length, np.float32(0.0))
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis] = slice(0, n - 1)
-        hi[axis] = slice(1, n)
-        np.maximum(foot[tuple(lo)], length, out=foot[tuple(lo)])
-        np.maximum(foot[tuple(hi)], length, out=foot[tuple(hi)])
-    return np.log2(np.maximum(foot, np.float32(1.0)))
+    foot2 = np.zeros(valid.shape, dtype=np.float32)  # squared footprint
+    # steps to the next pixel along x (axis 2) and along y (axis 1); each step counts for both its pixels
+    for lo, hi in (
+        ((slice(None), slice(None), slice(0, -1)), (slice(None), slice(None), slice(1, None))),
+        ((slice(None), slice(0, -1), slice(None)), (slice(None), slice(1, None), slice(None))),
+    ):
+        d = c[hi] - c[lo]
+        length2 = d[..., 0] * d[..., 0]
+        length2 += d[..., 1] * d[..., 1]
+        length2[~(valid[hi] & valid[lo])] = 0.0
+        np.maximum(foot2[lo], length2, out=foot2[lo])
+        np.maximum(foot2[hi], length2, out=foot2[hi])
+    np.maximum(foot2, np.float32(1.0), out=foot2)
+    lod = np.log2(foot2)
+    lod *= np.float32(0.5)
+    return lod
 
 
-def remap_bilinear(image: NDArray[np.uint8], mx: NDArray[np.float32], my: NDArray[np.float32]) -> NDArray[np.float32]:
+def remap_bilinear(
+    image: NDArray[np.uint8] | NDArray[np.float32], mx: NDArray[np.float32], my: NDArray[np.float32]
+) -> NDArray[np.float32]:
     """``cv2.remap`` (bilinear, edges replicated) for maps of any number of rows (OpenCV takes < 32767).
 
     Args:
-        image: (h, w, 3) uint8 source.
+        image: (h, w, 3) uint8 or float32 source.
         mx: (R, C) float32 source x of each output pixel.
         my: (R, C) float32 source y of each output pixel.
 
@@ -133,13 +166,27 @@ def sample(
     if not antialias or len(pyramid.levels) == 1:
         out = remap_bilinear(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
     else:
+        import cv2
+
         lod = np.minimum(level_of_detail(coords_px, valid), np.float32(len(pyramid.levels) - 1)).reshape(p * h, w)
-        out_flat = np.zeros((p * h, w, 3), dtype=np.float32)
-        low, high = int(np.floor(lod.min())), int(np.ceil(lod.max()))
-        for level in range(low, high + 1):
-            weight = np.maximum(np.float32(1.0) - np.abs(lod - np.float32(level)), np.float32(0.0))
-            f = np.float32(2.0**-level)
-            out_flat += weight[..., None] * remap_bilinear(pyramid.levels[level], mx * f, my * f)
-        out = out_flat.reshape(p, h, w, 3)
+        lower = lod.astype(np.intp)  # floor: lod >= 0
+        frac: NDArray[np.float32] = np.asarray(lod - lower.astype(np.float32), dtype=np.float32)
+        upper = np.minimum(lower + 1, len(pyramid.levels) - 1)
+        # clamping to level 0's pixel centres keeps every level's position within one pixel of that
+        # level (w_l = ceil(w_0 / 2**l) > (w_0 - 1) / 2**l), where the atlas border replicates the edge
+        h0, w0 = pyramid.levels[0].shape[:2]
+        mx = np.clip(mx, np.float32(0.0), np.float32(w0 - 1))
+        my = np.clip(my, np.float32(0.0), np.float32(h0 - 1))
+        scales = np.float32(2.0) ** -np.arange(len(pyramid.levels), dtype=np.float32)
+        taps = []
+        for level in (lower, upper):
+            f = np.take(scales, level)
+            ax = mx * f
+            ax += np.take(pyramid.offsets_x, level)
+            ay = my * f
+            ay += np.float32(1.0)
+            taps.append(remap_bilinear(pyramid.atlas, ax, ay))
+        out_flat = cv2.blendLinear(taps[0], taps[1], np.asarray(1.0 - frac, dtype=np.float32), frac)
+        out = np.asarray(out_flat, dtype=np.float32).reshape(p, h, w, 3)
     out[~valid] = 0.0
     return out

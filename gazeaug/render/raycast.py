@@ -17,7 +17,7 @@ from facemesh.render import RaycastScene
 
 from ..normalize import NormalizationSettings
 from ..texture import build_pyramid, sample
-from .base import RenderedPatches, RenderMesh, View, fill_misses, view_rays
+from .base import RenderedPatches, RenderMesh, View, fill_misses, view_rays_packed
 
 __all__ = ["RaycastRenderer", "RaycastFaceScene"]
 
@@ -33,8 +33,7 @@ class RaycastFaceScene:
 
     def render(self, views: Sequence[View]) -> RenderedPatches:
         """Render each view; see :class:`~gazeaug.render.base.Scene`."""
-        origins, dirs = view_rays(views)
-        hit, coords, _ = self._scene.trace(origins, dirs)
+        hit, coords, _ = self._scene.trace_rays(view_rays_packed(views))
         colours = sample(self._pyramid, coords, hit, antialias=self._antialias)
         coverage = hit.reshape(len(hit), -1).mean(axis=1)
         return RenderedPatches(images=fill_misses(colours, hit), coverage=coverage.astype(np.float64))
