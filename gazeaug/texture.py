@@ -13,10 +13,13 @@ on level-0 position ``2**l * j``. The footprint of an output pixel is the
 larger of the lengths of the source position's steps to the neighbouring
 output pixels (the GPU rule); ``lod = log2(footprint)``, clipped to the levels.
 
-For speed, the levels are also packed side by side into one float32 atlas
-(each with a one-pixel replicated border), so a trilinear lookup is two
+For speed, the levels are also packed side by side into one uint8 atlas
+(each level with a one-pixel replicated border), so a trilinear lookup is two
 ``cv2.remap`` calls (the lower and the upper level of every pixel) and one
-blend, however many levels the pixels of a batch span. Positions are clamped
+blend, however many levels the pixels of a batch span. Both lookups and the
+blend round to whole grey levels (OpenCV's 8-bit paths: bilinear weights in
+1/32 pixel, results rounded): within one grey level of exact trilinear
+filtering, and the same for test-time normalization and rendering. Positions are clamped
 to level 0's pixel centres; on every level that lands within the level or on
 its replicated border, which is what ``BORDER_REPLICATE`` gives.
 """
@@ -45,7 +48,7 @@ class MipPyramid:
 
     Attributes:
         levels: level 0 is the (h, w, 3) uint8 RGB image; level l is about (h / 2**l, w / 2**l, 3).
-        atlas: (h + 2, sum(w_l + 2), 3) float32: the levels side by side, each with a
+        atlas: (h + 2, sum(w_l + 2), 3) uint8: the levels side by side, each with a
             one-pixel replicated border; level l's pixel (x, y) is atlas pixel
             (x + offsets_x[l], y + 1).
         offsets_x: (L,) float32 atlas column of each level's pixel x = 0.
@@ -53,7 +56,7 @@ class MipPyramid:
     """
 
     levels: tuple[NDArray[np.uint8], ...]
-    atlas: NDArray[np.float32]
+    atlas: NDArray[np.uint8]
     offsets_x: NDArray[np.float32]
     limits: NDArray[np.float32]
 
@@ -69,7 +72,7 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
     while len(levels) <= max_levels and min(levels[-1].shape[:2]) >= 8:
         levels.append(np.asarray(cv2.pyrDown(levels[-1]), dtype=np.uint8))
     h0 = img.shape[0]
-    atlas = np.zeros((h0 + 2, sum(lv.shape[1] + 2 for lv in levels), 3), dtype=np.float32)
+    atlas = np.zeros((h0 + 2, sum(lv.shape[1] + 2 for lv in levels), 3), dtype=np.uint8)
     offsets, limits, x = [], [], 0
     for lv in levels:
         h, w = lv.shape[:2]
@@ -185,7 +188,11 @@ def sample(
             ax += np.take(pyramid.offsets_x, level)
             ay = my * f
             ay += np.float32(1.0)
-            taps.append(remap_bilinear(pyramid.atlas, ax, ay))
+            taps.append(
+                cv2.remap(pyramid.atlas, ax, ay, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                if len(ax) <= _MAX_REMAP_ROWS
+                else remap_bilinear(pyramid.atlas, ax, ay).round().astype(np.uint8)
+            )
         out_flat = cv2.blendLinear(taps[0], taps[1], np.asarray(1.0 - frac, dtype=np.float32), frac)
         out = np.asarray(out_flat, dtype=np.float32).reshape(p, h, w, 3)
     out[~valid] = 0.0

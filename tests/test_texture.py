@@ -34,7 +34,8 @@ def test_trilinear_matches_the_formula_per_level():
     rng = np.random.default_rng(3)
     import cv2
 
-    # texture with detail at every scale, smooth enough that remap's 1/32-pixel weights stay below 0.5 grey
+    # texture with detail at every scale, smooth enough that remap's 1/32-pixel weights stay below 0.5 grey;
+    # the 8-bit lookups and blend round to whole grey levels: within 1.5 of the exact value, 0.4 on average
     img = cv2.GaussianBlur(rng.integers(0, 256, (300, 420, 3), dtype=np.uint8), (0, 0), 1.5)
     img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX)
     pyr = build_pyramid(img)
@@ -53,8 +54,8 @@ def test_trilinear_matches_the_formula_per_level():
                 f = 2.0**-level
                 expected += weight * _bilinear_replicate(lv, coords[i, ..., 0] * f, coords[i, ..., 1] * f)
         # cv2.remap interpolates with 1/32-pixel fixed-point weights
-        assert np.abs(got[i] - expected).max() < 1.0, (s, np.abs(got[i] - expected).max())
-        assert np.abs(got[i] - expected).mean() < 0.3, (s, np.abs(got[i] - expected).mean())
+        assert np.abs(got[i] - expected).max() < 1.5, (s, np.abs(got[i] - expected).max())
+        assert np.abs(got[i] - expected).mean() < 0.4, (s, np.abs(got[i] - expected).mean())
 
 
 def test_outside_positions_replicate_the_edge_and_invalid_pixels_are_zero():
