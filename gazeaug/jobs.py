@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -107,6 +107,10 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
     from .pipeline import landmark_model_for
 
     _STATE["settings"] = settings
+    if threads == 1:  # several worker processes share the cores: no nested thread pools in OpenCV
+        import cv2
+
+        cv2.setNumThreads(1)
     _STATE["detector"] = landmark_model_for(None, None)
     if settings.kind == "augment":
         from .render import create_renderer
@@ -115,8 +119,21 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
         _STATE["renderer"] = create_renderer(settings.renderer, settings=settings.normalization, **options)
 
 
-def process_sample(sample: GazeSample) -> SampleOutcome:
-    """Process one sample with the worker's state (see :func:`_worker_init`)."""
+def _read_image(sample: GazeSample) -> NDArray[np.uint8] | Exception:
+    """The sample's image, or the InputError that reading it raised (run in the reader thread)."""
+    from facemesh.types import InputError
+
+    try:
+        return sample.load_image()
+    except InputError as exc:
+        return exc
+
+
+def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | None = None) -> SampleOutcome:
+    """Process one sample with the worker's state (see :func:`_worker_init`).
+
+    ``image``: the sample's image when already read (or the error reading it gave); None reads it here.
+    """
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
@@ -129,10 +146,10 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
     def skip(reason: str) -> SampleOutcome:
         return SampleOutcome(idx, None, {"source_index": idx, "image": str(sample.image_path), "reason": reason})
 
-    try:
-        image = sample.load_image()
-    except InputError as exc:
-        return skip(f"unreadable image: {exc}")
+    if image is None:
+        image = _read_image(sample)
+    if isinstance(image, Exception):
+        return skip(f"unreadable image: {image}")
     h, w = image.shape[:2]
     if sample.camera.image_size != (w, h):
         raise DatasetError(
@@ -188,17 +205,55 @@ def process_sample(sample: GazeSample) -> SampleOutcome:
     )
 
 
+#: Samples per task sent to a worker process (each task reads its next image while processing the current one).
+_CHUNK_SAMPLES = 8
+
+
+def _process_stream(samples: Iterable[GazeSample]) -> Iterator[SampleOutcome]:
+    """Process samples in order while a reader thread decodes the next sample's image.
+
+    Image decoding (OpenCV releases the GIL there) overlaps the landmark
+    detection and rendering of the previous sample.
+    """
+    from concurrent.futures import Future, ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1, thread_name_prefix="gazeaug-read") as reader:
+        it = iter(samples)
+        nxt = next(it, None)
+        pending: Future | None = reader.submit(_read_image, nxt) if nxt is not None else None
+        while nxt is not None and pending is not None:
+            current, image = nxt, pending
+            nxt = next(it, None)
+            pending = reader.submit(_read_image, nxt) if nxt is not None else None
+            yield process_sample(current, image.result())
+
+
+def _process_chunk(samples: list[GazeSample]) -> list[SampleOutcome]:
+    return list(_process_stream(samples))
+
+
+def _chunks(samples: Iterator[GazeSample], size: int) -> Iterator[list[GazeSample]]:
+    chunk: list[GazeSample] = []
+    for s in samples:
+        chunk.append(s)
+        if len(chunk) == size:
+            yield chunk
+            chunk = []
+    if chunk:
+        yield chunk
+
+
 def _outcomes(samples: Iterator[GazeSample], settings: JobSettings, workers: int) -> Iterator[SampleOutcome]:
     if workers <= 1:
         _worker_init(settings)
-        for s in samples:
-            yield process_sample(s)
+        yield from _process_stream(samples)
         return
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
     with ctx.Pool(workers, initializer=_worker_init, initargs=(settings, 1)) as pool:
-        yield from pool.imap(process_sample, samples, chunksize=1)
+        for outcomes in pool.imap(_process_chunk, _chunks(samples, _CHUNK_SAMPLES), chunksize=1):
+            yield from outcomes
 
 
 def _stats(angles_rad: NDArray[np.float64]) -> dict[str, Any]:
