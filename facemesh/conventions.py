@@ -203,34 +203,48 @@ def rotation_to_head_pitchyaw(rotation_head_to_camera: ArrayLike) -> NDArray[np.
     return vector_to_pitchyaw(-r[..., :, 2])
 
 
-def rotation_yaw(yaw_rad: float) -> NDArray[np.float64]:
+def _rotations(
+    c: NDArray[np.float64], s: NDArray[np.float64], rows: tuple[tuple[str, ...], ...]
+) -> NDArray[np.float64]:
+    """(..., 3, 3) matrices whose entries are "1", "0", "c", "s" or "-s" per ``rows``."""
+    values = {"1": np.ones_like(c), "0": np.zeros_like(c), "c": c, "s": s, "-s": -s}
+    return np.stack([np.stack([values[e] for e in row], axis=-1) for row in rows], axis=-2)
+
+
+def rotation_yaw(yaw_rad: ArrayLike) -> NDArray[np.float64]:
     """Rotation about the camera's y axis that turns a face pointing along -z to yaw ``yaw_rad``.
 
     ``[[cos, 0, sin], [0, 1, 0], [-sin, 0, cos]]`` (right-handed about +y).
+    ``yaw_rad``: a float, or an array of shape (...,) for (..., 3, 3) matrices.
     """
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    y = np.asarray(yaw_rad, dtype=np.float64)
+    return _rotations(np.cos(y), np.sin(y), (("c", "0", "s"), ("0", "1", "0"), ("-s", "0", "c")))
 
 
-def rotation_pitch(pitch_rad: float) -> NDArray[np.float64]:
+def rotation_pitch(pitch_rad: ArrayLike) -> NDArray[np.float64]:
     """Rotation about the camera's x axis that turns a face pointing along -z to pitch ``pitch_rad`` (up for > 0).
 
     It is the right-handed rotation about +x by ``-pitch_rad``:
     ``[[1, 0, 0], [0, cos, sin], [0, -sin, cos]]``.
+    ``pitch_rad``: a float, or an array of shape (...,) for (..., 3, 3) matrices.
     """
-    c, s = np.cos(pitch_rad), np.sin(pitch_rad)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+    p = np.asarray(pitch_rad, dtype=np.float64)
+    return _rotations(np.cos(p), np.sin(p), (("1", "0", "0"), ("0", "c", "s"), ("0", "-s", "c")))
 
 
-def rotation_from_yaw_pitch(yaw_rad: float, pitch_rad: float) -> NDArray[np.float64]:
+def rotation_from_yaw_pitch(yaw_rad: ArrayLike, pitch_rad: ArrayLike) -> NDArray[np.float64]:
     """The paper's head rotation ``R(y, p) = R_pitch(p) @ R_yaw(y)``: yaw first, then pitch.
 
     Applied to a frontal face (pointing along -z) it gives a face pointing to
     ``(-sin y, -sin p cos y, -cos p cos y)``: exactly pitch p for y = 0 and
     exactly yaw y for p = 0.
 
+    Args:
+        yaw_rad: float, or an array (...,) for many rotations at once.
+        pitch_rad: float, or an array of the same shape.
+
     Returns:
-        (3, 3) float64 rotation, camera frame.
+        (3, 3) (or (..., 3, 3)) float64 rotation, camera frame.
     """
     return rotation_pitch(pitch_rad) @ rotation_yaw(yaw_rad)
 

@@ -36,7 +36,15 @@ from .errors import GazeAugError
 from .normalize import EYES, EyePatch, FaceLabels, NormalizationSettings, NormalizedSample
 from .render.base import RenderMesh, Scene, View, render_mesh
 
-__all__ = ["FaceAsset", "face_asset", "HeadPlacement", "sampled_placement", "source_placement", "render_poses"]
+__all__ = [
+    "FaceAsset",
+    "face_asset",
+    "HeadPlacement",
+    "sampled_placement",
+    "sampled_placements",
+    "source_placement",
+    "render_poses",
+]
 
 
 @dataclass(frozen=True)
@@ -48,12 +56,15 @@ class FaceAsset:
         model_vertices_mm: (N, 3) float64, mm, head frame: the face model the pose was solved with.
         keypoints: the eye (and mouth) corner indices into the model.
         render_mesh: the mesh with its background rings, as renderers take it.
+        reference_points_mm: (3, 3) float64, mm, head frame: the left eye's centre, the right
+            eye's centre and the face centre (rows), as normalization defines them.
     """
 
     mesh: FaceMesh
     model_vertices_mm: NDArray[np.float64]
     keypoints: FaceKeypoints
     render_mesh: RenderMesh
+    reference_points_mm: NDArray[np.float64]
 
 
 def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAsset:
@@ -80,7 +91,12 @@ def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAs
         raise GazeAugError(f"mesh without known eye landmarks: {exc}") from exc
     if max(kp.face_indices) >= len(model):
         raise GazeAugError(f"eye corner indices {kp.face_indices} do not fit a {len(model)}-point face model")
-    return FaceAsset(mesh=mesh, model_vertices_mm=model, keypoints=kp, render_mesh=render_mesh(mesh))
+    refs = np.stack(
+        [model[list(kp.eye(side))].mean(axis=0) for side in EYES] + [model[list(kp.face_indices)].mean(axis=0)]
+    )
+    return FaceAsset(
+        mesh=mesh, model_vertices_mm=model, keypoints=kp, render_mesh=render_mesh(mesh), reference_points_mm=refs
+    )
 
 
 @dataclass(frozen=True)
@@ -102,16 +118,28 @@ def sampled_placement(
     asset: FaceAsset, yaw_rad: float, pitch_rad: float, distance_mm: float | None = None
 ) -> HeadPlacement:
     """The head at ``R(yaw, pitch)``, its eye midpoint ``distance_mm`` in front of the camera on the optical axis."""
+    return sampled_placements(asset, [[yaw_rad, pitch_rad]], distance_mm)[0]
+
+
+def sampled_placements(
+    asset: FaceAsset, yaw_pitch_rad: ArrayLike, distance_mm: float | None = None
+) -> list[HeadPlacement]:
+    """:func:`sampled_placement` for K poses at once.
+
+    Args:
+        asset: the face.
+        yaw_pitch_rad: (K, 2) float radians, (yaw, pitch) rows (as :meth:`HeadPoseDistribution.sample` gives).
+        distance_mm: eye midpoint to camera, mm (default: the source photo's distance).
+    """
+    yp = np.asarray(yaw_pitch_rad, dtype=np.float64).reshape(-1, 2)
     d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
     if not (np.isfinite(d) and d > 0):
         raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
-    if not (np.isfinite(yaw_rad) and np.isfinite(pitch_rad)):
-        raise GazeAugError(f"head pose: expected finite yaw and pitch, got {yaw_rad}, {pitch_rad}")
-    return HeadPlacement(
-        rotation=rotation_from_yaw_pitch(yaw_rad, pitch_rad),
-        translation_mm=np.array([0.0, 0.0, d]),
-        yaw_pitch_rad=np.array([yaw_rad, pitch_rad]),
-    )
+    if not np.isfinite(yp).all():
+        raise GazeAugError(f"head pose: expected finite yaw and pitch, got {yp.tolist()}")
+    rot = rotation_from_yaw_pitch(yp[:, 0], yp[:, 1])
+    t = np.array([0.0, 0.0, d])
+    return [HeadPlacement(rotation=rot[k], translation_mm=t, yaw_pitch_rad=yp[k]) for k in range(len(yp))]
 
 
 def source_placement(asset: FaceAsset) -> HeadPlacement:
@@ -172,12 +200,8 @@ def render_poses(
             raise GazeAugError("gaze: zero-length gaze vector")
     rot = np.stack([p.rotation for p in placements])  # (P, 3, 3) head -> application camera
     trans = np.stack([p.translation_mm for p in placements])  # (P, 3)
-    kp, model = asset.keypoints, asset.model_vertices_mm
-    # reference points in the head frame: left eye, right eye, face centre
-    points_head = np.stack(
-        [model[list(kp.eye(side))].mean(axis=0) for side in EYES] + [model[list(kp.face_indices)].mean(axis=0)]
-    )  # (3, 3)
-    refs = np.einsum("pij,ej->pei", rot, points_head) + trans[:, None, :]  # (P, 3, 3)
+    # reference points (left eye, right eye, face centre) at each placement
+    refs = np.einsum("pij,ej->pei", rot, asset.reference_points_mm) + trans[:, None, :]  # (P, 3, 3)
     cams = normalized_cameras(
         refs.reshape(-1, 3),
         np.repeat(rot, 3, axis=0),

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .augment import FaceAsset, render_poses, sampled_placement
+from .augment import FaceAsset, render_poses, sampled_placements
 from .normalize import NormalizationSettings
 from .render import create_renderer
 from .sampling import HeadPoseDistribution
@@ -40,7 +40,7 @@ def _render_chunk(
             render_poses(
                 scene,
                 asset,
-                [sampled_placement(asset, y, p) for y, p in yp],
+                sampled_placements(asset, yp),
                 gaze_vector=np.array([0.0, 0.0, -1.0]),
                 settings=settings,
                 renderer_name=renderer,

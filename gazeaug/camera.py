@@ -166,18 +166,27 @@ def normalized_cameras(
     if w <= 0 or h <= 0:
         raise GazeAugError(f"normalized image size: expected positive (width, height), got {size_wh}")
     forward = e / np.linalg.norm(e, axis=1, keepdims=True)
-    down = np.cross(forward, hr[:, :, 0])
+    down = _cross(forward, hr[:, :, 0])
     n = np.linalg.norm(down, axis=1, keepdims=True)
     if (n < 1e-9).any():
         raise GazeAugError("the head's x axis is parallel to the line of sight; the normalized camera is undefined")
     down /= n
-    right = np.cross(down, forward)
+    right = _cross(down, forward)
     right /= np.linalg.norm(right, axis=1, keepdims=True)
     rot = np.stack([right, down, forward], axis=1)
     rot.setflags(write=False)
     e = e.copy()
     e.setflags(write=False)
     return [_built_camera(rot[i], e[i], float(distance_mm), float(focal_px), (w, h)) for i in range(len(e))]
+
+
+def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row-wise cross product of (K, 3) arrays (``np.cross`` without its generality's overhead)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 def _built_camera(

@@ -328,7 +328,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _cmd_preview(args: argparse.Namespace) -> int:
     from facemesh.io import save_image_rgb
 
-    from .augment import render_poses, sampled_placement, source_placement
+    from .augment import render_poses, sampled_placements, source_placement
     from .errors import GazeAugError
     from .render import create_renderer
     from .viz import contact_sheet, plot_distributions
@@ -344,7 +344,7 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     target = args.gaze_target if args.gaze_target is not None else (0.0, 0.0, 0.0)
     scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)
     yp = dist.sample(args.n, args.seed)
-    places = [sampled_placement(asset, y, p) for y, p in yp]
+    places = sampled_placements(asset, yp)
     augmented = render_poses(
         scene, asset, places, gaze_target_mm=target, settings=settings, renderer_name=args.renderer
     )

@@ -137,7 +137,7 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
-    from .augment import face_asset, render_poses, sampled_placement
+    from .augment import face_asset, render_poses, sampled_placements
     from .pipeline import dataset_mesh, fit_face, fit_from_dataset, mesh_for_fit
 
     s: JobSettings = _STATE["settings"]
@@ -187,7 +187,7 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             asset = face_asset(mesh)
             scene = _STATE["renderer"].scene(asset.render_mesh)
             yp = s.distribution.sample(s.per_sample, np.random.default_rng([s.seed, idx]))
-            places = [sampled_placement(asset, y, p) for y, p in yp]
+            places = sampled_placements(asset, yp)
             samples = render_poses(
                 scene,
                 asset,

@@ -299,13 +299,13 @@ def normalize_image(
     pyr = pyramid if pyramid is not None else build_pyramid(img)
     coords = np.stack([source_coordinates(cams[side], camera) for side in EYES])
     valid = np.ones(coords.shape[:3], dtype=bool)
-    patches = sample(pyr, coords, valid, antialias=s.antialias)
+    patches = sample(pyr, coords, valid, antialias=s.antialias, dtype=np.uint8)
     eyes = {}
     for i, side in enumerate(EYES):
         cam = cams[side]
         g = gaze_direction(cam.reference_mm, gaze_target_mm, gaze_vector)
         eyes[side] = EyePatch(
-            image=np.clip(np.round(patches[i]), 0, 255).astype(np.uint8),
+            image=np.ascontiguousarray(patches[i]),
             camera=cam,
             head_pose=cam.head_pose_pitchyaw(pose.rotation),
             gaze=None if g is None else cam.gaze_pitchyaw(g),

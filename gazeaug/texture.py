@@ -27,6 +27,7 @@ its replicated border, which is what ``BORDER_REPLICATE`` gives.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -121,24 +122,30 @@ def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) ->
 
 
 def remap_bilinear(
-    image: NDArray[np.uint8] | NDArray[np.float32], mx: NDArray[np.float32], my: NDArray[np.float32]
-) -> NDArray[np.float32]:
+    image: NDArray[np.uint8],
+    mx: NDArray[np.float32],
+    my: NDArray[np.float32],
+    dtype: type[np.floating] | type[np.uint8] = np.float32,
+) -> NDArray[Any]:
     """``cv2.remap`` (bilinear, edges replicated) for maps of any number of rows (OpenCV takes < 32767).
 
     Args:
-        image: (h, w, 3) uint8 or float32 source.
+        image: (h, w, 3) uint8 source.
         mx: (R, C) float32 source x of each output pixel.
         my: (R, C) float32 source y of each output pixel.
+        dtype: of the result: float32 (OpenCV's rounded 8-bit values, as floats) or uint8.
 
     Returns:
-        (R, C, 3) float32.
+        (R, C, 3) ``dtype``.
     """
     import cv2
 
     mx = np.ascontiguousarray(mx, dtype=np.float32)
     my = np.ascontiguousarray(my, dtype=np.float32)
     rows = mx.shape[0]
-    out = np.empty(mx.shape + (3,), dtype=np.float32)
+    if rows <= _MAX_REMAP_ROWS and dtype == image.dtype:
+        return np.asarray(cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    out = np.empty(mx.shape + (3,), dtype=dtype)
     for a in range(0, rows, _MAX_REMAP_ROWS):
         b = min(rows, a + _MAX_REMAP_ROWS)
         out[a:b] = cv2.remap(image, mx[a:b], my[a:b], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -151,7 +158,8 @@ def sample(
     valid: NDArray[np.bool_],
     *,
     antialias: bool = True,
-) -> NDArray[np.float32]:
+    dtype: type[np.floating] | type[np.uint8] = np.float32,
+) -> NDArray[Any]:
     """Sample the pyramid at source positions: bilinear within a level, linear between levels.
 
     Args:
@@ -159,15 +167,16 @@ def sample(
         coords_px: (P, H, W, 2) float32 level-0 pixel positions (x, y; pixel centres at integers).
         valid: (P, H, W) bool; invalid pixels come out 0.
         antialias: False samples level 0 only (plain bilinear, like ``cv2.warpPerspective``).
+        dtype: float32 (default) or uint8 (the same values: OpenCV's 8-bit lookups and blend round them).
 
     Returns:
-        (P, H, W, 3) float32 RGB in [0, 255].
+        (P, H, W, 3) ``dtype`` RGB in [0, 255].
     """
     p, h, w = valid.shape
     mx = np.ascontiguousarray(coords_px[..., 0].reshape(p * h, w), dtype=np.float32)
     my = np.ascontiguousarray(coords_px[..., 1].reshape(p * h, w), dtype=np.float32)
     if not antialias or len(pyramid.levels) == 1:
-        out = remap_bilinear(pyramid.levels[0], mx, my).reshape(p, h, w, 3)
+        out = remap_bilinear(pyramid.levels[0], mx, my, dtype).reshape(p, h, w, 3)
     else:
         import cv2
 
@@ -188,12 +197,8 @@ def sample(
             ax += np.take(pyramid.offsets_x, level)
             ay = my * f
             ay += np.float32(1.0)
-            taps.append(
-                cv2.remap(pyramid.atlas, ax, ay, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                if len(ax) <= _MAX_REMAP_ROWS
-                else remap_bilinear(pyramid.atlas, ax, ay).round().astype(np.uint8)
-            )
-        out_flat = cv2.blendLinear(taps[0], taps[1], np.asarray(1.0 - frac, dtype=np.float32), frac)
-        out = np.asarray(out_flat, dtype=np.float32).reshape(p, h, w, 3)
-    out[~valid] = 0.0
+            taps.append(remap_bilinear(pyramid.atlas, ax, ay, np.uint8))
+        blended = cv2.blendLinear(taps[0], taps[1], np.asarray(1.0 - frac, dtype=np.float32), frac)
+        out = np.asarray(blended, dtype=dtype).reshape(p, h, w, 3)
+    out[~valid] = 0
     return out

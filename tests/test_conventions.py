@@ -93,3 +93,17 @@ def test_angular_error_hand_values():
     assert cv.angular_error_deg([1, 0, 0], [0, 1, 0]) == pytest.approx(90.0)
     assert cv.angular_error_deg([1, 0, 0], [2, 0, 0]) == pytest.approx(0.0)
     assert cv.angular_error_deg([0, 0, -1], [0, -S30, -C30]) == pytest.approx(30.0)
+
+
+def test_rotation_from_yaw_pitch_batches_agree_with_the_hand_formula():
+    from facemesh.conventions import rotation_from_yaw_pitch
+
+    yaw = np.radians([0.0, 25.0, -40.0, 10.0])
+    pitch = np.radians([30.0, -15.0, 5.0, 0.0])
+    r = rotation_from_yaw_pitch(yaw, pitch)
+    assert r.shape == (4, 3, 3)
+    # the frontal face direction (0, 0, -1) goes to (-sin y, -sin p cos y, -cos p cos y)
+    expected = np.stack([-np.sin(yaw), -np.sin(pitch) * np.cos(yaw), -np.cos(pitch) * np.cos(yaw)], axis=1)
+    np.testing.assert_allclose(r @ [0.0, 0.0, -1.0], expected, atol=1e-15)
+    for k in range(4):
+        np.testing.assert_allclose(r[k], rotation_from_yaw_pitch(yaw[k], pitch[k]), atol=1e-15)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -178,16 +178,16 @@ def _grid32(size_wh: tuple[int, int]) -> NDArray[np.float32]:
     return pixel_grid(size_wh).reshape(-1, 3).astype(np.float32)
 
 
-def fill_misses(images: NDArray[np.float32], hit: NDArray[np.bool_]) -> NDArray[np.uint8]:
+def fill_misses(images: NDArray[Any], hit: NDArray[np.bool_]) -> NDArray[np.uint8]:
     """Round to uint8 and inpaint pixels no ray hit (Telea), per image; images without misses pass through.
 
     Args:
-        images: (P, H, W, 3) float RGB.
+        images: (P, H, W, 3) float RGB, or uint8 (then filled in place).
         hit: (P, H, W) bool.
     """
     import cv2
 
-    out = np.clip(np.round(images), 0, 255).astype(np.uint8)
+    out = images if images.dtype == np.uint8 else np.clip(np.round(images), 0, 255).astype(np.uint8)
     for i in np.flatnonzero(~hit.reshape(len(hit), -1).all(axis=1)):
         if not hit[i].any():
             out[i] = 0

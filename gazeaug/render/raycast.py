@@ -34,7 +34,7 @@ class RaycastFaceScene:
     def render(self, views: Sequence[View]) -> RenderedPatches:
         """Render each view; see :class:`~gazeaug.render.base.Scene`."""
         hit, coords, _ = self._scene.trace_rays(view_rays_packed(views))
-        colours = sample(self._pyramid, coords, hit, antialias=self._antialias)
+        colours = sample(self._pyramid, coords, hit, antialias=self._antialias, dtype=np.uint8)
         coverage = hit.reshape(len(hit), -1).mean(axis=1)
         return RenderedPatches(images=fill_misses(colours, hit), coverage=coverage.astype(np.float64))
 
