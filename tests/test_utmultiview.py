@@ -232,6 +232,15 @@ def test_augment_uses_the_dataset_meshes(ut, tmp_path):
     assert (d["left_eye"].reshape(8, -1).std(axis=1) > 5).all()  # textured eyes, not background
     summary = run_dataset(open_dataset(root), tmp_path / "n.h5", JobSettings(kind="normalize-dataset"), progress=False)
     assert summary["rows"] == 4 and summary["skipped"] == 0
+    # the command line, two worker processes: the same rows
+    from gazeaug.cli import main
+
+    out2 = tmp_path / "ut2.h5"
+    args = ["augment", str(root), "-o", str(out2), "--format", "utmultiview", "--per-sample", "2", "--seed", "1"]
+    assert main([*args, "--workers", "2", "--quiet"]) == 0
+    d2 = read_h5(out2)
+    np.testing.assert_array_equal(d2["left_eye"], d["left_eye"])
+    np.testing.assert_array_equal(d2["gaze"], d["gaze"])
 
 
 def _copy(root: Path, dst: Path) -> Path:
