@@ -134,7 +134,8 @@ def _view_ray_matrices(views: Sequence[View]) -> tuple[NDArray[np.float64], NDAr
     # mesh-frame ray of pixel (u, v, 1): A^T R^T S^-1 C_n^-1 (u, v, 1), all views at once
     # (NormalizedCamera.pixel_to_ray, batched)
     r = np.stack([v.camera.rotation for v in views])
-    inv_scale = np.array([np.linalg.norm(v.camera.reference_mm) / v.camera.distance_mm for v in views])
+    refs = np.stack([v.camera.reference_mm for v in views])
+    inv_scale = np.sqrt(np.einsum("pi,pi->p", refs, refs)) / np.array([v.camera.distance_mm for v in views])
     f = np.array([v.camera.focal_px for v in views])
     k_inv = np.zeros((len(views), 3, 3))
     k_inv[:, 0, 0] = k_inv[:, 1, 1] = 1.0 / f
