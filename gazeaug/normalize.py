@@ -35,7 +35,7 @@ from facemesh.types import CameraIntrinsics, HeadPose
 
 from .camera import NormalizedCamera, normalized_cameras
 from .errors import GazeAugError
-from .texture import MipPyramid, build_pyramid, sample
+from .texture import MipPyramid, region_pyramid, sample
 
 __all__ = [
     "EYES",
@@ -282,7 +282,8 @@ def normalize_image(
         gaze_target_mm: (3,) float, mm, camera frame: the point looked at (per-eye gaze = target - eye centre).
         gaze_vector: (3,) float, camera frame: a gaze direction shared by both eyes (instead of a target).
         settings: see :class:`NormalizationSettings`.
-        pyramid: the image's pyramid when already built (saves time on repeated calls).
+        pyramid: the whole image's pyramid when already built (default: the pyramid of the region
+            around the eyes, built here; see :func:`gazeaug.texture.region_pyramid`).
         meta: extras to record.
 
     Raises:
@@ -296,8 +297,12 @@ def normalize_image(
         raise GazeAugError(f"camera is for {camera.image_size} images, the image is {(img.shape[1], img.shape[0])}")
     refs = reference_points(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints)
     cams = _eye_cameras_at(refs, pose.rotation, s)
-    pyr = pyramid if pyramid is not None else build_pyramid(img)
     coords = np.stack([source_coordinates(cams[side], camera) for side in EYES])
+    if pyramid is not None:
+        pyr = pyramid
+    else:  # only the region around the eyes (the same samples, a fraction of the work)
+        pyr, origin = region_pyramid(img, coords)
+        coords -= np.asarray(origin, dtype=np.float32)
     valid = np.ones(coords.shape[:3], dtype=bool)
     patches = sample(pyr, coords, valid, antialias=s.antialias, dtype=np.uint8)
     eyes = {}

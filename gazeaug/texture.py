@@ -34,7 +34,15 @@ from numpy.typing import NDArray
 
 from .errors import GazeAugError
 
-__all__ = ["MAX_LEVELS", "MipPyramid", "build_pyramid", "level_of_detail", "sample", "remap_bilinear"]
+__all__ = [
+    "MAX_LEVELS",
+    "MipPyramid",
+    "build_pyramid",
+    "region_pyramid",
+    "level_of_detail",
+    "sample",
+    "remap_bilinear",
+]
 
 #: Pyramid levels beyond the original (footprints up to 16 source pixels per output pixel).
 MAX_LEVELS = 4
@@ -87,6 +95,47 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
         offsets_x=np.asarray(offsets, dtype=np.float32),
         limits=np.asarray(limits, dtype=np.float32),
     )
+
+
+#: Region crops start on multiples of this (so the crop's pyramid levels line up with the whole image's).
+REGION_ALIGN = 2**MAX_LEVELS
+
+#: Pixels kept around the sampled positions: pyrDown's 5-tap kernel, repeated over the levels, and the
+#: bilinear taps of the coarsest level, stay inside it.
+REGION_MARGIN_PX = 8 * 2**MAX_LEVELS
+
+
+def region_pyramid(
+    image_rgb: NDArray[np.uint8], coords_px: NDArray[np.float32]
+) -> tuple[MipPyramid, tuple[int, int]]:
+    """The pyramid of just the part of an image that positions will sample (plus a margin).
+
+    Building the pyramid of a 1920 x 1280 photo to read two 60 x 36 patches
+    costs milliseconds; the region around the eyes costs a tenth of that.
+    Sampling the region's pyramid at ``coords_px - origin`` gives what
+    sampling the whole image's pyramid at ``coords_px`` gives: the region
+    starts on a multiple of :data:`REGION_ALIGN` and keeps
+    :data:`REGION_MARGIN_PX` around the positions (clipped to the image, whose
+    edges the sampler replicates either way).
+
+    Args:
+        image_rgb: (H, W, 3) uint8 RGB.
+        coords_px: (..., 2) float pixel positions (x, y) in the image.
+
+    Returns:
+        ``(pyramid, (x0, y0))``: the region's pyramid and its top-left pixel in the image.
+    """
+    h, w = image_rgb.shape[:2]
+    c = np.asarray(coords_px, dtype=np.float64).reshape(-1, 2)
+    c = c[np.isfinite(c).all(axis=1)]
+    if len(c) == 0:
+        return build_pyramid(image_rgb), (0, 0)
+    lo = np.clip(np.floor(c.min(axis=0)), 0, [w - 1, h - 1]) - REGION_MARGIN_PX
+    hi = np.clip(np.ceil(c.max(axis=0)), 0, [w - 1, h - 1]) + REGION_MARGIN_PX
+    x0 = max(0, int(lo[0]) // REGION_ALIGN * REGION_ALIGN)
+    y0 = max(0, int(lo[1]) // REGION_ALIGN * REGION_ALIGN)
+    x1, y1 = min(w, int(hi[0]) + 1), min(h, int(hi[1]) + 1)
+    return build_pyramid(np.ascontiguousarray(image_rgb[y0:y1, x0:x1])), (x0, y0)
 
 
 def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[np.float32]:
