@@ -21,6 +21,7 @@ real image normalized at that pose agree pixel for pixel and label for label.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +31,7 @@ from facemesh.conventions import rotation_to_head_pitchyaw, vector_to_pitchyaw
 
 from .errors import GazeAugError
 
-__all__ = ["NormalizedCamera", "normalized_camera", "normalized_cameras", "pixel_grid"]
+__all__ = ["NormalizedCamera", "normalized_camera", "normalized_cameras", "pixel_to_ray_matrices", "pixel_grid"]
 
 _EYE3 = np.eye(3)
 
@@ -100,10 +101,7 @@ class NormalizedCamera:
     @property
     def pixel_to_ray(self) -> NDArray[np.float64]:
         """(3, 3) float64 ``R^T S^-1 C_n^-1``: normalized pixel ``(u, v, 1)`` -> ray direction, real camera frame."""
-        w, h = self.size_wh
-        f = self.focal_px
-        k_inv = np.array([[1.0 / f, 0.0, -w / (2.0 * f)], [0.0, 1.0 / f, -h / (2.0 * f)], [0.0, 0.0, 1.0]])
-        return self.rotation.T @ np.diag([1.0, 1.0, 1.0 / self.scale]) @ k_inv
+        return pixel_to_ray_matrices([self])[0]
 
     def ray_directions(self) -> NDArray[np.float64]:
         """(H, W, 3) float64: for each normalized pixel centre, its ray in the real camera frame.
@@ -132,6 +130,23 @@ class NormalizedCamera:
     def gaze_pitchyaw(self, gaze_vector: ArrayLike) -> NDArray[np.float64]:
         """(2,) float64 radians: a real-camera-frame gaze direction as (pitch, yaw) in the normalized frame."""
         return vector_to_pitchyaw(self.normalize_vector(gaze_vector))
+
+
+def pixel_to_ray_matrices(cameras: Sequence[NormalizedCamera]) -> NDArray[np.float64]:
+    """(K, 3, 3) float64 :attr:`NormalizedCamera.pixel_to_ray` of K cameras at once: ``R^T S^-1 C_n^-1``."""
+    r = np.stack([c.rotation for c in cameras])
+    refs = np.stack([c.reference_mm for c in cameras])
+    inv_scale = np.sqrt(np.einsum("ki,ki->k", refs, refs)) / np.array([c.distance_mm for c in cameras])
+    f = np.array([c.focal_px for c in cameras])
+    size = np.array([c.size_wh for c in cameras], dtype=np.float64)
+    k_inv = np.zeros((len(cameras), 3, 3))
+    k_inv[:, 0, 0] = k_inv[:, 1, 1] = 1.0 / f
+    k_inv[:, 0, 2] = -size[:, 0] / (2.0 * f)
+    k_inv[:, 1, 2] = -size[:, 1] / (2.0 * f)
+    k_inv[:, 2, 2] = 1.0
+    rt_s = np.transpose(r, (0, 2, 1)).copy()
+    rt_s[:, :, 2] *= inv_scale[:, None]
+    return np.asarray(rt_s @ k_inv, dtype=np.float64)
 
 
 def normalized_cameras(

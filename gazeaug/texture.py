@@ -61,13 +61,11 @@ class MipPyramid:
             one-pixel replicated border; level l's pixel (x, y) is atlas pixel
             (x + offsets_x[l], y + 1).
         offsets_x: (L,) float32 atlas column of each level's pixel x = 0.
-        limits: (L, 2) float32 ``(w_l - 1, h_l - 1)``: each level's last pixel centre.
     """
 
     levels: tuple[NDArray[np.uint8], ...]
     atlas: NDArray[np.uint8]
     offsets_x: NDArray[np.float32]
-    limits: NDArray[np.float32]
 
 
 def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) -> MipPyramid:
@@ -82,18 +80,16 @@ def build_pyramid(image_rgb: NDArray[np.uint8], max_levels: int = MAX_LEVELS) ->
         levels.append(np.asarray(cv2.pyrDown(levels[-1]), dtype=np.uint8))
     h0 = img.shape[0]
     atlas = np.zeros((h0 + 2, sum(lv.shape[1] + 2 for lv in levels), 3), dtype=np.uint8)
-    offsets, limits, x = [], [], 0
+    offsets, x = [], 0
     for lv in levels:
         h, w = lv.shape[:2]
         atlas[: h + 2, x : x + w + 2] = cv2.copyMakeBorder(lv, 1, 1, 1, 1, cv2.BORDER_REPLICATE)
         offsets.append(x + 1)
-        limits.append((w - 1, h - 1))
         x += w + 2
     return MipPyramid(
         levels=tuple(levels),
         atlas=atlas,
         offsets_x=np.asarray(offsets, dtype=np.float32),
-        limits=np.asarray(limits, dtype=np.float32),
     )
 
 
@@ -105,9 +101,7 @@ REGION_ALIGN = 2**MAX_LEVELS
 REGION_MARGIN_PX = 8 * 2**MAX_LEVELS
 
 
-def region_pyramid(
-    image_rgb: NDArray[np.uint8], coords_px: NDArray[np.float32]
-) -> tuple[MipPyramid, tuple[int, int]]:
+def region_pyramid(image_rgb: NDArray[np.uint8], coords_px: NDArray[np.float32]) -> tuple[MipPyramid, tuple[int, int]]:
     """The pyramid of just the part of an image that positions will sample (plus a margin).
 
     Building the pyramid of a 1920 x 1280 photo to read two 60 x 36 patches

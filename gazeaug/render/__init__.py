@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import GazeAugError
-from .base import RenderedPatches, Renderer, RenderMesh, Scene, View, fill_misses, render_mesh, view_rays
+from .base import RenderedPatches, Renderer, RenderMesh, Scene, View, fill_misses, render_mesh, view_rays_packed
 
 __all__ = [
     "RENDERERS",
@@ -22,7 +22,7 @@ __all__ = [
     "View",
     "fill_misses",
     "render_mesh",
-    "view_rays",
+    "view_rays_packed",
 ]
 
 #: Names :func:`create_renderer` accepts.

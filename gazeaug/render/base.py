@@ -29,7 +29,7 @@ from facemesh.face_models.triangulation import boundary_loops
 from facemesh.pose import project_points
 from facemesh.types import FaceMesh
 
-from ..camera import NormalizedCamera, pixel_grid
+from ..camera import NormalizedCamera, pixel_grid, pixel_to_ray_matrices
 from ..errors import GazeAugError
 
 __all__ = [
@@ -40,7 +40,6 @@ __all__ = [
     "Renderer",
     "render_mesh",
     "fill_misses",
-    "view_rays",
     "view_rays_packed",
 ]
 
@@ -121,57 +120,27 @@ class Renderer(Protocol):
         ...
 
 
-def _view_ray_matrices(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[int, int]]:
-    """Per view: ``M`` (3, 3) with mesh-frame ray ``M (u, v, 1)``, the camera centre (3,), and the patch size."""
+def view_rays_packed(views: Sequence[View]) -> NDArray[np.float32]:
+    """Rays of every pixel of every view, in the mesh's (source camera) frame, as (P, H, W, 6) float32.
+
+    Each ray is ``(origin xyz, direction xyz)``. The mesh-frame ray of pixel
+    ``(u, v, 1)`` is ``A^T R^T S^-1 C_n^-1 (u, v, 1)`` from the camera centre
+    ``A^T (0 - b)``; all of them come from one product, ``(u, v, 1) @ [[0 | M^T]] + (o | 0)``
+    (the pixel's constant 1 carries the origin).
+    """
     if not views:
         raise GazeAugError("no views to render")
     sizes = {v.camera.size_wh for v in views}
     if len(sizes) != 1:
         raise GazeAugError(f"views to render together must share one patch size, got {sorted(sizes)}")
+    w, h = sizes.pop()
     a = np.stack([v.rotation for v in views])
     b = np.stack([v.translation_mm for v in views])
-    w, h = sizes.pop()
-    # mesh-frame ray of pixel (u, v, 1): A^T R^T S^-1 C_n^-1 (u, v, 1), all views at once
-    # (NormalizedCamera.pixel_to_ray, batched)
-    r = np.stack([v.camera.rotation for v in views])
-    refs = np.stack([v.camera.reference_mm for v in views])
-    inv_scale = np.sqrt(np.einsum("pi,pi->p", refs, refs)) / np.array([v.camera.distance_mm for v in views])
-    f = np.array([v.camera.focal_px for v in views])
-    k_inv = np.zeros((len(views), 3, 3))
-    k_inv[:, 0, 0] = k_inv[:, 1, 1] = 1.0 / f
-    k_inv[:, 0, 2] = -w / (2.0 * f)
-    k_inv[:, 1, 2] = -h / (2.0 * f)
-    k_inv[:, 2, 2] = 1.0
-    rt_s = np.transpose(r, (0, 2, 1)).copy()
-    rt_s[:, :, 2] *= inv_scale[:, None]
-    m = np.einsum("pji,pjk->pik", a, rt_s @ k_inv)
-    origins = -np.einsum("pji,pj->pi", a, b)  # A^T (0 - b)
-    return m, origins, (w, h)
-
-
-def view_rays(views: Sequence[View]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Rays of every pixel of every view, in the mesh's (source camera) frame.
-
-    Returns:
-        ``(origins, directions)``: (P, 1, 1, 3) float64 and (P, H, W, 3) float32.
-    """
-    m, origins, (w, h) = _view_ray_matrices(views)
-    grid = pixel_grid((w, h)).reshape(-1, 3).astype(np.float32)
-    dirs = np.matmul(grid[None], m.transpose(0, 2, 1).astype(np.float32)).reshape(len(views), h, w, 3)
-    return origins[:, None, None, :], dirs
-
-
-def view_rays_packed(views: Sequence[View]) -> NDArray[np.float32]:
-    """:func:`view_rays` packed as (P, H, W, 6) float32 ``(origin, direction)`` in one product.
-
-    ``(u, v, 1) @ [[0 | M^T]] + (o | 0)``: the pixel's constant 1 carries the origin.
-    """
-    m, origins, (w, h) = _view_ray_matrices(views)
-    b = np.zeros((len(views), 3, 6), dtype=np.float32)
-    b[:, :, 3:] = m.transpose(0, 2, 1)
-    b[:, 2, :3] = origins
-    grid = _grid32((w, h))
-    return np.matmul(grid[None], b).reshape(len(views), h, w, 6)
+    m = np.einsum("pji,pjk->pik", a, pixel_to_ray_matrices([v.camera for v in views]))
+    packed = np.zeros((len(views), 3, 6), dtype=np.float32)
+    packed[:, :, 3:] = m.transpose(0, 2, 1)
+    packed[:, 2, :3] = -np.einsum("pji,pj->pi", a, b)  # A^T (0 - b)
+    return np.matmul(_grid32((w, h))[None], packed).reshape(len(views), h, w, 6)
 
 
 @functools.lru_cache(maxsize=4)
