@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .conventions import pixels_to_uv
 from .pose import solve_head_pose, undistort_to_rays
@@ -106,9 +106,15 @@ def place_vertices(
 
 
 def crop_texture(
-    image_rgb: NDArray[np.uint8], landmarks: FaceLandmarks, margin: float
+    image_rgb: NDArray[np.uint8], points_px: ArrayLike, margin: float
 ) -> tuple[NDArray[np.uint8], tuple[int, int]]:
-    """Crop the image to the landmarks' bounding box plus a margin (clipped to the image).
+    """Crop the image to the points' bounding box plus a margin (clipped to the image).
+
+    Args:
+        image_rgb: (H, W, 3) uint8 RGB.
+        points_px: (N, 2) float, pixels, image frame: what the texture must hold
+            (the landmarks, or a mesh's projected vertices).
+        margin: added on every side, as a fraction of the box's larger side.
 
     The crop's top-left corner is rounded down to a multiple of
     :data:`TEXTURE_ALIGN` pixels, so that the texture's image pyramid
@@ -119,7 +125,8 @@ def crop_texture(
         ``(texture, (x0, y0))``: (h, w, 3) uint8 RGB and its top-left pixel in the image.
     """
     h, w = image_rgb.shape[:2]
-    x0, y0, x1, y1 = landmarks.bbox_px
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+    (x0, y0), (x1, y1) = pts.min(axis=0), pts.max(axis=0)
     pad = margin * max(x1 - x0, y1 - y0)
     ix0 = max(0, int(math.floor(x0 - pad)) // TEXTURE_ALIGN * TEXTURE_ALIGN)
     iy0 = max(0, int(math.floor(y0 - pad)) // TEXTURE_ALIGN * TEXTURE_ALIGN)
@@ -171,7 +178,7 @@ def build_face_mesh(
         rec = ball_pivoting(vertices, viewpoint_mm=(0.0, 0.0, 0.0), settings=s.ball_pivoting)
         triangles = rec.triangles
         reconstruction = rec.as_metadata()
-    texture, origin = crop_texture(image_rgb, landmarks, s.texture_margin)
+    texture, origin = crop_texture(image_rgb, landmarks.points_px, s.texture_margin)
     uv = pixels_to_uv(landmarks.points_px[:n], origin, (texture.shape[1], texture.shape[0]))
     return FaceMesh(
         vertices_mm=vertices,

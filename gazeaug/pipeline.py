@@ -236,7 +236,7 @@ def dataset_mesh(fit: FaceFit, sample: GazeSample, settings: BuildSettings = MES
     if np.einsum("ij,ij->", n, v[tri[:, 0]]) > 0:
         tri = tri[:, [0, 2, 1]]
     px = project_points(v, sample.camera)
-    texture, origin = crop_texture(fit.image, FaceLandmarks(px, "dataset_mesh"), settings.texture_margin)
+    texture, origin = crop_texture(fit.image, px, settings.texture_margin)
     uv = pixels_to_uv(px, origin, (texture.shape[1], texture.shape[0]))
     return FaceMesh(
         vertices_mm=v,
