@@ -33,7 +33,7 @@ from facemesh.types import FaceMesh
 
 from .camera import normalized_cameras
 from .errors import GazeAugError
-from .normalize import EYES, EyePatch, FaceLabels, NormalizationSettings, NormalizedSample
+from .normalize import EYES, EyePatch, FaceLabels, NormalizationSettings, NormalizedSample, reference_points
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 __all__ = [
@@ -91,9 +91,8 @@ def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAs
         raise GazeAugError(f"mesh without known eye landmarks: {exc}") from exc
     if max(kp.face_indices) >= len(model):
         raise GazeAugError(f"eye corner indices {kp.face_indices} do not fit a {len(model)}-point face model")
-    refs = np.stack(
-        [model[list(kp.eye(side))].mean(axis=0) for side in EYES] + [model[list(kp.face_indices)].mean(axis=0)]
-    )
+    centres = reference_points(np.eye(3), np.zeros(3), model, kp)  # the head frame itself
+    refs = np.stack([centres["left"], centres["right"], centres["face"]])
     return FaceAsset(
         mesh=mesh, model_vertices_mm=model, keypoints=kp, render_mesh=render_mesh(mesh), reference_points_mm=refs
     )
