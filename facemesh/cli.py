@@ -167,6 +167,10 @@ def _cmd_build(args: argparse.Namespace) -> None:
         print(f"facemesh: wrote {args.preview}")
 
 
+#: Height of the preview's panels at least (smaller face crops are enlarged), pixels.
+PREVIEW_MIN_HEIGHT_PX = 360
+
+
 def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
     """The photo with the rendered mesh blended in, its wireframe and landmarks drawn, beside a frontal render."""
     import cv2
@@ -181,18 +185,27 @@ def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
     canvas = image.copy()
     hit = over.coverage > 0
     canvas[hit] = (0.5 * canvas[hit] + 0.5 * over.image[hit]).astype(np.uint8)
-    px = project_points(mesh.vertices_mm, mesh.camera)
-    thickness = max(1, round(max(h, w) / 1000))
-    for a, b, c in mesh.triangles:
-        pts = np.round(px[[a, b, c]]).astype(np.int32)
-        cv2.polylines(canvas, [pts], True, (40, 220, 255), thickness, cv2.LINE_AA)
     # Frontal view: undo the head rotation (about the head frame's origin).
     pitch, yaw = rotation_to_head_pitchyaw(mesh.pose.rotation)
     frontal = RaycastScene.from_mesh(mesh, rotation=mesh.pose.rotation.T).render(k, (w, h), supersample=2).image
     x0, y0, x1, y1 = (int(v) for v in mesh.landmarks.bbox_px)
     pad = int(0.2 * max(x1 - x0, y1 - y0))
-    crop = (slice(max(0, y0 - pad), min(h, y1 + pad)), slice(max(0, x0 - pad), min(w, x1 + pad)))
+    cx, cy = max(0, x0 - pad), max(0, y0 - pad)
+    crop = (slice(cy, min(h, y1 + pad)), slice(cx, min(w, x1 + pad)))
     left, right = canvas[crop], frontal[crop]
+    # small faces: enlarge the panels so the wireframe stays open and the labels fit inside them
+    scale = max(1.0, PREVIEW_MIN_HEIGHT_PX / left.shape[0])
+    if scale > 1.0:
+        size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
+        left = cv2.resize(left, size, interpolation=cv2.INTER_CUBIC)
+        right = cv2.resize(right, size, interpolation=cv2.INTER_CUBIC)
+    else:
+        left = left.copy()
+    px = (project_points(mesh.vertices_mm, mesh.camera) - (cx, cy)) * scale
+    thickness = max(1, round(max(h, w) * scale / 1000))
+    for a, b, c in mesh.triangles:
+        pts = np.round(px[[a, b, c]]).astype(np.int32)
+        cv2.polylines(left, [pts], True, (40, 220, 255), thickness, cv2.LINE_AA)
     label = f"pitch {math.degrees(pitch):+.1f}  yaw {math.degrees(yaw):+.1f} deg"
     cv2.putText(left, label, (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     cv2.putText(right, "turned frontal", (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)

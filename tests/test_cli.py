@@ -24,7 +24,10 @@ def test_build_sample_info_render_export(tmp_path, capsys):
     mesh = load(glb)
     assert mesh.num_vertices == 468 and mesh.num_triangles == 898
     assert mesh.extras["source_image"] == "skimage.data.astronaut"
-    assert cv2.imread(str(tmp_path / "preview.png")) is not None
+    preview = cv2.imread(str(tmp_path / "preview.png"))
+    assert preview is not None
+    # the built-in sample's face is small: its panels are enlarged so the labels fit
+    assert preview.shape[0] >= 360
     assert main(["info", str(glb), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["vertices"] == 468 and info["vertex_placement"] == "backprojected"
