@@ -197,8 +197,8 @@ def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
     scale = max(1.0, PREVIEW_MIN_HEIGHT_PX / left.shape[0])
     if scale > 1.0:
         size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
-        left = cv2.resize(left, size, interpolation=cv2.INTER_CUBIC)
-        right = cv2.resize(right, size, interpolation=cv2.INTER_CUBIC)
+        left = np.asarray(cv2.resize(left, size, interpolation=cv2.INTER_CUBIC), dtype=np.uint8)
+        right = np.asarray(cv2.resize(right, size, interpolation=cv2.INTER_CUBIC), dtype=np.uint8)
     else:
         left = left.copy()
     px = (project_points(mesh.vertices_mm, mesh.camera) - (cx, cy)) * scale
