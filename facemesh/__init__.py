@@ -10,7 +10,9 @@ The stages compose: landmarks -> head pose -> mesh -> asset::
     with MediaPipeFaceMesh() as detector:
         mesh = facemesh.build_mesh(image, camera, detector)
     facemesh.save(mesh, "face.glb")
-    same = facemesh.load("face.glb")
+    same = facemesh.load("face.glb")  # a FaceMesh again: vertex i = landmark i
+    o3d_mesh = same.to_open3d()  # any FaceMesh; keeps that order (Open3D's own .glb readers do not)
+    tm_mesh = same.to_trimesh()
 
 Conventions (frames, axes, angles, units) are in :mod:`facemesh.conventions`.
 """

@@ -22,13 +22,29 @@ from .types import FaceMeshError
 __all__ = ["main", "build_parser"]
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``facemesh CMD: error: ...``) and exit 2."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _finite(text: str) -> float:
+    """Argparse type: a finite float (NaN and infinities are refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``facemesh`` command."""
     from . import __version__
 
-    parser = argparse.ArgumentParser(
-        prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF."
-    )
+    parser = _Parser(prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -61,7 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--bpa-backend", choices=("open3d", "pymeshlab"), default="open3d", help="Ball-Pivoting implementation"
     )
     b.add_argument("--texture-format", choices=("png", "jpeg"), default="png", help="texture encoding inside the .glb")
-    b.add_argument("--texture-margin", type=float, default=0.15, help="texture crop margin, fraction of the face size")
+    b.add_argument(
+        "--texture-margin", type=_finite, default=0.15, help="texture crop margin, fraction of the face size"
+    )
     b.add_argument("--atlas", action="store_true", help="repack the texture into a compact atlas (xatlas)")
     b.add_argument("--preview", type=Path, help="also write a picture: the mesh rendered over the photo")
 
@@ -71,8 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="picture of a .glb's face turned by a yaw and a pitch")
     r.add_argument("glb", type=Path)
-    r.add_argument("--yaw", type=float, default=0.0, help="degrees; > 0 turns the face toward the image's left")
-    r.add_argument("--pitch", type=float, default=0.0, help="degrees; > 0 turns the face up")
+    r.add_argument("--yaw", type=_finite, default=0.0, help="degrees; > 0 turns the face toward the image's left")
+    r.add_argument("--pitch", type=_finite, default=0.0, help="degrees; > 0 turns the face up")
     r.add_argument("--supersample", type=int, default=2, help="rays per pixel side")
     r.add_argument("-o", "--output", type=Path, required=True, help="output picture (.png/.jpg)")
 
@@ -84,25 +102,52 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Check every output path of the command before any work starts (see :mod:`facemesh.outputs`)."""
+    from .outputs import check_output_file, check_picture_path
+
+    if args.command == "build":
+        check_output_file(args.output, (".glb",), what="mesh (.glb)")
+        if args.preview is not None:
+            check_picture_path(args.preview, what="preview picture")
+    elif args.command == "render":
+        check_picture_path(args.output)
+    elif args.command == "model":
+        check_output_file(args.output, (".obj",), what="face model (.obj)")
+
+
+_COMMANDS: dict[str, Any] = {}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (also used as the console script's)."""
+    """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
+    import os
+
     parser = build_parser()
-    args = parser.parse_args(argv)
     try:
-        if args.command == "build":
-            _cmd_build(args)
-        elif args.command == "info":
-            _cmd_info(args)
-        elif args.command == "render":
-            _cmd_render(args)
-        elif args.command == "model":
-            _cmd_model_export(args)
-    except FaceMeshError as exc:
-        print(f"facemesh: error: {exc}", file=sys.stderr)
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # bad options (one line printed, 2), --help or --version (0)
+        return exc.code if isinstance(exc.code, int) else 2
+    def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        print(f"facemesh: warning: {message}", file=sys.stderr)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show
+            _check_outputs(args)
+            _COMMANDS[args.command](args)
+    except (FaceMeshError, ImportError) as exc:
+        print(f"facemesh: error: {' '.join(str(exc).split())}", file=sys.stderr)  # one line, always
         return 2
-    except ImportError as exc:
-        print(f"facemesh: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print("\nfacemesh: interrupted; nothing was written (outputs are written whole or not at all)", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
+        if os.environ.get("GAZEAUG_DEBUG"):
+            raise
+        what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
+        print(f"facemesh: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -117,8 +162,6 @@ def _cmd_build(args: argparse.Namespace) -> None:
     from .reconstruct import BallPivotingSettings
     from .types import InputError
 
-    if args.output.suffix.lower() != ".glb":
-        raise InputError(f"{args.output}: the output must be a .glb file")
     if args.image is None:
         image, source = sample_image(), SAMPLE_NAME
     else:
@@ -269,6 +312,8 @@ def _cmd_model_export(args: argparse.Namespace) -> None:
     n_tri = 0 if model.triangles is None else len(model.triangles)
     print(f"facemesh: wrote {args.output} ({model.num_points} vertices in mm, {n_tri} triangles)")
 
+
+_COMMANDS.update(build=_cmd_build, info=_cmd_info, render=_cmd_render, model=_cmd_model_export)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -26,7 +26,9 @@ glTF frame (``gltf``)
 Texture coordinates (``uv``)
     glTF's: u to the right, v down, (0, 0) the top-left *corner* of the
     texture image and (1, 1) the bottom-right corner. Pixel centre (i, j) of a
-    W x H texture sits at ((i + 0.5) / W, (j + 0.5) / H).
+    W x H texture sits at ((i + 0.5) / W, (j + 0.5) / H). Open3D and trimesh
+    use the other common convention (origin at the bottom-left corner, v up):
+    :func:`gltf_uv_to_bottom_left_uv` converts.
 
 Angles
 ------
@@ -58,6 +60,7 @@ __all__ = [
     "gltf_to_opencv_points",
     "pixels_to_uv",
     "uv_to_pixels",
+    "gltf_uv_to_bottom_left_uv",
     "pitchyaw_to_vector",
     "vector_to_pitchyaw",
     "rotation_to_head_pitchyaw",
@@ -150,6 +153,29 @@ def uv_to_pixels(uv: ArrayLike, size_wh: tuple[int, int]) -> NDArray[np.float64]
     out = np.empty_like(t)
     out[..., 0] = t[..., 0] * size_wh[0] - 0.5
     out[..., 1] = t[..., 1] * size_wh[1] - 0.5
+    return out
+
+
+def gltf_uv_to_bottom_left_uv(uv: ArrayLike) -> NDArray[np.float64]:
+    """GlTF texture coordinates (origin top-left, v down) -> origin bottom-left, v up.
+
+    Convention: glTF puts (0, 0) at the top-left corner of the texture image
+    with v growing down the image; OpenGL, and with it Open3D's and trimesh's
+    glTF readers, put (0, 0) at the bottom-left corner with v growing up. u
+    (to the right) is the same in both, so ``(u, v) -> (u, 1 - v)``: the
+    top-left corner (0, 0) becomes (0, 1), the bottom-left corner (0, 1)
+    becomes (0, 0). The conversion is its own inverse.
+
+    Args:
+        uv: (K, 2) float, glTF texture coordinates (any (..., 2) shape works).
+
+    Returns:
+        (K, 2) float64 (same shape as ``uv``), texture coordinates with the
+        origin at the bottom-left corner, v up: ``(u, 1 - v)``.
+    """
+    t = _as_points(uv, 2, "uv")
+    out = np.array(t, dtype=np.float64, copy=True)
+    out[..., 1] = 1.0 - t[..., 1]
     return out
 
 

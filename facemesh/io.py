@@ -18,9 +18,10 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .outputs import umask_mode
 from .types import InputError
 
-__all__ = ["load_image_rgb", "to_rgb_uint8", "atomic_write", "save_image_rgb", "MIN_IMAGE_SIDE"]
+__all__ = ["load_image_rgb", "to_rgb_uint8", "atomic_write", "save_image_rgb", "MIN_IMAGE_SIDE", "MAX_IMAGE_PIXELS"]
 
 #: Images smaller than this (pixels, either side) are refused: no landmark
 #: model finds a face in them.
@@ -66,13 +67,25 @@ def to_rgb_uint8(image: NDArray[np.generic], name: str = "image") -> NDArray[np.
     return np.ascontiguousarray(out)
 
 
+#: Images with more pixels (width x height) than this are refused from their
+#: header, before anything is decoded: 100 megapixels is 300 MB as 8-bit RGB
+#: (and a few times that while converting), four times ETH-XGaze's 6000 x 4000
+#: photos and well below OpenCV's own limit of 2^30 pixels (which it reports
+#: as an exception from inside ``cv2.imdecode``).
+MAX_IMAGE_PIXELS = 100_000_000
+
+
 def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     """Read an image file as (H, W, 3) uint8 RGB.
 
     Grey, RGBA, palette and 16-bit files are converted (see :func:`to_rgb_uint8`).
+    The image's size is read from its header first (PNG ``IHDR``, JPEG ``SOF``,
+    other formats through Pillow when it is installed): images above
+    :data:`MAX_IMAGE_PIXELS` are refused without being decoded.
 
     Raises:
-        InputError: the file is missing, is not an image, or is truncated.
+        InputError: the file is missing, is not an image, is truncated, is larger
+            than :data:`MAX_IMAGE_PIXELS`, or OpenCV fails to decode it.
     """
     import cv2
 
@@ -86,14 +99,106 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
         raise InputError(f"{p}: the file is empty")
     if not _looks_complete(data):
         raise InputError(f"{p}: the image file is truncated")
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    size = _header_size(data, p)
+    if size is not None:
+        _check_pixel_count(p, *size)
+    try:
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:  # e.g. sizes beyond OpenCV's limits, or a decoder assertion
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{p}: OpenCV cannot decode the image ({reason})") from exc
     if img is None:
         raise InputError(f"{p}: not an image OpenCV can read (or the file is damaged)")
+    _check_pixel_count(p, img.shape[1], img.shape[0])  # formats whose header was not read
     if img.ndim == 3 and img.shape[2] == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)  # a contiguous copy, much faster than img[..., ::-1]
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
     return to_rgb_uint8(img, name=str(p))
+
+
+def _check_pixel_count(p: Path, width: int, height: int) -> None:
+    """Refuse an image of ``width`` x ``height`` pixels above :data:`MAX_IMAGE_PIXELS`."""
+    if width * height > MAX_IMAGE_PIXELS:
+        raise InputError(
+            f"{p}: the image is {width}x{height} pixels ({width * height / 1e6:.1f} megapixels); "
+            f"images above {MAX_IMAGE_PIXELS / 1e6:g} megapixels are refused (downscale it first)"
+        )
+
+
+#: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic), which carry the image size.
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def _header_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
+    """(width, height) from the file's header, or None when the header is not understood.
+
+    PNG and JPEG are parsed here; other formats go through Pillow's header reader
+    (when Pillow is installed). Nothing is decoded.
+    """
+    head = data[:8].tobytes()
+    if head == b"\x89PNG\r\n\x1a\n":
+        ihdr = data[8:24].tobytes()
+        if len(ihdr) == 16 and ihdr[4:8] == b"IHDR":
+            return int.from_bytes(ihdr[8:12], "big"), int.from_bytes(ihdr[12:16], "big")
+        return None
+    if head[:2] == b"\xff\xd8":
+        return _jpeg_size(data)
+    return _pillow_size(data, p)
+
+
+def _jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's SOF segment, walking the segments before it; None if not found."""
+    buf = memoryview(np.ascontiguousarray(data).data)  # indexing gives ints; nothing is copied
+    n = len(buf)
+    i = 2
+    while i + 4 <= n:
+        if buf[i] != 0xFF:
+            return None
+        marker = buf[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            i += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image, or scan data before any frame header
+            return None
+        length = (buf[i + 2] << 8) | buf[i + 3]
+        if marker in _JPEG_SOF:
+            if i + 9 > n or length < 7:
+                return None
+            height = (buf[i + 5] << 8) | buf[i + 6]
+            width = (buf[i + 7] << 8) | buf[i + 8]
+            return (width, height) if width and height else None  # height 0: given later (DNL); decode
+        if length < 2:
+            return None
+        i += 2 + length
+    return None
+
+
+def _pillow_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
+    """(width, height) as Pillow reads it from the header (no pixel is decoded); None without Pillow or a match."""
+    import io as _io
+    import warnings
+
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(_io.BytesIO(data.tobytes())) as im:
+                w, h = im.size
+    except Image.DecompressionBombError as exc:  # above Pillow's own limit, which is above ours
+        raise InputError(
+            f"{p}: the image is larger than Pillow's limit of {2 * (Image.MAX_IMAGE_PIXELS or 0) / 1e6:g} "
+            f"megapixels; images above {MAX_IMAGE_PIXELS / 1e6:g} megapixels are refused ({exc})"
+        ) from exc
+    except Exception:  # noqa: BLE001 - an unknown or damaged header: OpenCV decides
+        return None
+    return int(w), int(h)
 
 
 def _looks_complete(data: NDArray[np.uint8]) -> bool:
@@ -112,12 +217,14 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
     """Open a temporary file beside ``path``; rename it onto ``path`` only if the block succeeds.
 
     On any exception the temporary file is removed and ``path`` is untouched.
-    The parent folder is created if missing.
+    The parent folder is created if missing. The file gets the permissions the
+    umask gives (``0666 & ~umask``), as a plain ``open`` would.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=str(target.parent))
     try:
+        os.fchmod(fd, umask_mode())  # mkstemp makes 0600; outputs follow the umask like any other file
         with os.fdopen(fd, mode) as fh:
             yield fh
             fh.flush()

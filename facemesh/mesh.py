@@ -14,6 +14,15 @@ Vertex placement (``BuildSettings.vertex_placement``):
     Like ``backprojected``, but the depth comes from the landmark model's own
     per-face z (MediaPipe's), scaled to mm at the face's distance and centred
     on the posed model's mean depth.
+
+Other libraries (:func:`to_open3d`, :func:`to_trimesh`, also
+:meth:`FaceMesh.to_open3d <facemesh.types.FaceMesh.to_open3d>` and
+:meth:`FaceMesh.to_trimesh <facemesh.types.FaceMesh.to_trimesh>`): Open3D's
+glTF readers reorder a ``.glb``'s vertices (``o3d.io.read_triangle_mesh``
+leaves 2 of the built-in sample's 468 in place), which breaks "vertex i =
+landmark i". ``facemesh.load(path).to_open3d()`` reads the file with
+:func:`facemesh.gltf.load_glb` and converts it with the order kept; a built
+mesh converts the same way (docs/interop.md).
 """
 
 from __future__ import annotations
@@ -21,17 +30,31 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .conventions import pixels_to_uv
+from .conventions import OPENCV_TO_GLTF, gltf_uv_to_bottom_left_uv, opencv_to_gltf_points, pixels_to_uv
 from .pose import solve_head_pose, undistort_to_rays
 from .reconstruct import BallPivotingSettings, ball_pivoting
 from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose, InputError
 
-__all__ = ["VERTEX_PLACEMENTS", "TEXTURE_ALIGN", "BuildSettings", "place_vertices", "crop_texture", "build_face_mesh"]
+if TYPE_CHECKING:  # heavy optional libraries: imported where used
+    import open3d
+    import trimesh
+
+__all__ = [
+    "VERTEX_PLACEMENTS",
+    "TEXTURE_ALIGN",
+    "INTEROP_FRAMES",
+    "BuildSettings",
+    "place_vertices",
+    "crop_texture",
+    "build_face_mesh",
+    "to_open3d",
+    "to_trimesh",
+]
 
 VERTEX_PLACEMENTS = ("canonical", "backprojected", "landmarks3d")
 
@@ -194,4 +217,134 @@ def build_face_mesh(
         reconstruction=reconstruction,
         extras=dict(extras or {}),
         model_vertices_mm=model.vertices_mm,
+    )
+
+
+# --------------------------------------------------------------------------- other libraries: Open3D, trimesh
+
+#: Frames :func:`to_open3d` and :func:`to_trimesh` can give the vertices in
+#: (names as in :mod:`facemesh.conventions`).
+INTEROP_FRAMES = ("gltf", "camera")
+
+
+def _interop_geometry(
+    mesh: FaceMesh, frame: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Vertices, vertex normals and the glTF uv of ``mesh`` for another library.
+
+    Returns:
+        ``(vertices, normals, uv)``: (N, 3) float64 vertices in ``frame``
+        (``"gltf"``: metres, glTF frame, the float32 values a ``.glb`` of this
+        mesh stores, exactly; ``"camera"``: ``mesh.vertices_mm`` as they are,
+        millimetres, OpenCV camera frame); (N, 3) float64 unit area-weighted
+        vertex normals in the same frame (the ``.glb``'s ``NORMAL`` values);
+        (N, 2) float64 glTF uv (origin top-left).
+
+    Raises:
+        InputError: ``frame`` is not one of :data:`INTEROP_FRAMES`.
+    """
+    from .gltf import _vertex_normals  # the writer's own normals: the file's NORMAL accessor
+
+    if frame not in INTEROP_FRAMES:
+        raise InputError(f"frame: expected one of {INTEROP_FRAMES}, got {frame!r}")
+    # As save_glb writes them: glTF frame, metres, rounded to float32.
+    gltf_m = opencv_to_gltf_points(mesh.vertices_mm).astype(np.float32).astype(np.float64)
+    normals = _vertex_normals(gltf_m, np.asarray(mesh.triangles)).astype(np.float64)
+    if frame == "gltf":
+        return gltf_m, normals, np.asarray(mesh.uv, dtype=np.float64)
+    # The axis change is its own inverse and a rotation: normals map like points.
+    return np.array(mesh.vertices_mm, dtype=np.float64), normals @ OPENCV_TO_GLTF.T, np.asarray(mesh.uv)
+
+
+def to_open3d(mesh: FaceMesh, *, frame: str = "gltf") -> open3d.geometry.TriangleMesh:
+    """The mesh as an Open3D ``TriangleMesh`` whose vertex i is ``mesh`` vertex i (landmark i).
+
+    What Open3D's own glTF reader (``o3d.io.read_triangle_mesh``) builds from
+    this mesh's ``.glb``, in the file's vertex order instead of a shuffled one:
+
+    * ``vertices``: (N, 3) float64. ``frame="gltf"`` (default): metres, glTF
+      frame (x right, y up, z toward the viewer; :mod:`facemesh.conventions`),
+      exactly the float32 values of the ``.glb``'s ``POSITION`` accessor.
+      ``frame="camera"``: millimetres, OpenCV camera frame of the source
+      camera (x right, y down, z forward), exactly ``mesh.vertices_mm``.
+    * ``triangles``: (M, 3) int32, ``mesh.triangles`` (same rows, same
+      winding: counter-clockwise seen from the camera, so normals face it).
+    * ``vertex_normals``: (N, 3) float64 unit, area-weighted, in ``frame``
+      (the ``.glb``'s ``NORMAL`` values).
+    * ``triangle_uvs``: (3M, 2) float64, the uv of each triangle's corners,
+      in Open3D's convention (origin bottom-left, v up), as its glTF reader
+      converts them: ``(u, 1 - v)`` of the glTF uv
+      (:func:`~facemesh.conventions.gltf_uv_to_bottom_left_uv`), with
+      ``textures[0]`` the texture flipped upside down
+      (so both flips cancel and every corner samples the same texel).
+    * ``textures``: ``[o3d.geometry.Image]``, (H, W, 3) uint8 RGB;
+      ``triangle_material_ids``: (M,) int32 zeros.
+
+    Args:
+        mesh: any face mesh.
+        frame: ``"gltf"`` or ``"camera"`` (see above).
+
+    Raises:
+        InputError: unknown ``frame``. ImportError: open3d is not installed.
+    """
+    import open3d as o3d
+
+    vertices, normals, uv = _interop_geometry(mesh, frame)
+    tri = np.asarray(mesh.triangles, dtype=np.int64)
+    out = o3d.geometry.TriangleMesh()
+    out.vertices = o3d.utility.Vector3dVector(np.ascontiguousarray(vertices))
+    out.triangles = o3d.utility.Vector3iVector(np.ascontiguousarray(tri.astype(np.int32)).reshape(-1, 3))
+    out.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals))
+    out.triangle_uvs = o3d.utility.Vector2dVector(np.ascontiguousarray(gltf_uv_to_bottom_left_uv(uv[tri.reshape(-1)])))
+    out.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(tri), dtype=np.int32))
+    texture_rows_flipped: Any = np.ascontiguousarray(mesh.texture[::-1])  # Any: numpy 1 arrays are not typed as Buffer
+    out.textures = [o3d.geometry.Image(texture_rows_flipped)]
+    return out
+
+
+def to_trimesh(mesh: FaceMesh, *, frame: str = "gltf") -> trimesh.Trimesh:
+    """The mesh as a ``trimesh.Trimesh`` whose vertex i is ``mesh`` vertex i (landmark i).
+
+    Built with ``process=False, maintain_order=True``: no vertex is merged,
+    dropped or moved.
+
+    * ``vertices``: (N, 3) float64, in ``frame`` as for :func:`to_open3d`
+      (default ``"gltf"``: metres, glTF frame, the ``.glb``'s float32
+      ``POSITION`` values exactly; ``"camera"``: millimetres, OpenCV camera
+      frame, ``mesh.vertices_mm``).
+    * ``faces``: (M, 3) int64, ``mesh.triangles`` (counter-clockwise seen from
+      the camera).
+    * ``vertex_normals``: (N, 3) float64 unit, area-weighted, in ``frame``.
+    * ``visual``: ``trimesh.visual.TextureVisuals`` with ``uv`` (N, 2) float64
+      in trimesh's convention, as its glTF loader converts them: ``(u, 1 - v)``
+      of the glTF uv (origin at the bottom-left, v up;
+      :func:`~facemesh.conventions.gltf_uv_to_bottom_left_uv`); its material a
+      ``PBRMaterial`` (base colour texture: the (H, W, 3) uint8 RGB texture as
+      a PIL image, top row first; metallic 0, roughness 1), like the ``.glb``'s.
+
+    Args:
+        mesh: any face mesh.
+        frame: ``"gltf"`` or ``"camera"``.
+
+    Raises:
+        InputError: unknown ``frame``. ImportError: trimesh or Pillow is not installed.
+    """
+    import trimesh as tm
+    from PIL import Image
+
+    vertices, normals, uv = _interop_geometry(mesh, frame)
+    material = tm.visual.material.PBRMaterial(
+        name="face",
+        baseColorTexture=Image.fromarray(np.ascontiguousarray(mesh.texture), mode="RGB"),
+        metallicFactor=0.0,
+        roughnessFactor=1.0,
+    )
+    visual = tm.visual.TextureVisuals(uv=gltf_uv_to_bottom_left_uv(uv), material=material)
+    return tm.Trimesh(
+        vertices=vertices,
+        faces=np.asarray(mesh.triangles, dtype=np.int64),
+        vertex_normals=normals,
+        visual=visual,
+        process=False,
+        maintain_order=True,
     )

@@ -86,6 +86,8 @@ class RaycastScene:
         self._e2 = np.ascontiguousarray((corners[:, 2] - corners[:, 0]).T, dtype=np.float32)
         if self._triangles.size == 0:
             raise InputError("cannot render a mesh without triangles")
+        if not np.isfinite(self._vertices).all():  # e.g. turned by a NaN angle: a blank picture otherwise
+            raise InputError("cannot render a mesh whose vertices are NaN or infinite")
         #: Embree threads per cast (0: all cores). One per process is faster when several processes render.
         self.threads = 0
         self._scene = o3d.t.geometry.RaycastingScene()

@@ -9,10 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:  # heavy optional libraries: imported where used (facemesh.mesh)
+    import open3d
+    import trimesh
 
 __all__ = [
     "FaceMeshError",
@@ -278,3 +282,25 @@ class FaceMesh:
     def num_triangles(self) -> int:
         """Number of triangles M."""
         return len(self.triangles)
+
+    def to_open3d(self, *, frame: str = "gltf") -> open3d.geometry.TriangleMesh:
+        """Open3D ``TriangleMesh`` whose vertex i is this mesh's vertex i (landmark i).
+
+        Default: metres, glTF frame; ``frame="camera"``: millimetres, OpenCV
+        camera frame. Shapes, dtypes, frames and texture coordinates:
+        :func:`facemesh.mesh.to_open3d`, which this calls.
+        """
+        from . import mesh  # lazily: facemesh.mesh imports this module
+
+        return mesh.to_open3d(self, frame=frame)
+
+    def to_trimesh(self, *, frame: str = "gltf") -> trimesh.Trimesh:
+        """``trimesh.Trimesh`` whose vertex i is this mesh's vertex i (landmark i).
+
+        Default: metres, glTF frame; ``frame="camera"``: millimetres, OpenCV
+        camera frame. Shapes, dtypes, frames and texture coordinates:
+        :func:`facemesh.mesh.to_trimesh`, which this calls.
+        """
+        from . import mesh  # lazily: facemesh.mesh imports this module
+
+        return mesh.to_trimesh(self, frame=frame)

@@ -21,6 +21,35 @@ import numpy as np
 __all__ = ["main", "build_parser"]
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``gazeaug CMD: error: ...``) and exit 2."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _positive_int(text: str) -> int:
+    """Argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def _finite(text: str) -> float:
+    """Argparse type: a finite float (NaN and infinities are refused, as everywhere in the toolkit)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat")
     p.add_argument(
@@ -31,8 +60,8 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_normalization_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--distance", type=float, default=600.0, help="normalized distance d_n in mm (default 600)")
-    p.add_argument("--focal", type=float, default=650.0, help="normalized focal length f_n in px (default 650)")
+    p.add_argument("--distance", type=_finite, default=600.0, help="normalized distance d_n in mm (default 600)")
+    p.add_argument("--focal", type=_finite, default=650.0, help="normalized focal length f_n in px (default 650)")
     p.add_argument(
         "--patch-size", type=int, nargs=2, default=(60, 36), metavar=("W", "H"), help="eye patch size (default 60 36)"
     )
@@ -42,7 +71,7 @@ def _add_normalization_options(p: argparse.ArgumentParser) -> None:
 def _add_gaze_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gaze-target",
-        type=float,
+        type=_finite,
         nargs=3,
         metavar=("X", "Y", "Z"),
         help="3D point looked at, mm, camera frame of the image (OpenCV: x right, y down, z forward)",
@@ -51,12 +80,12 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
 
 def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
-    g.add_argument("--yaw-mean", type=float, default=0.0, help="degrees (default 0)")
-    g.add_argument("--pitch-mean", type=float, default=30.0, help="degrees; + = camera below the face (default 30)")
-    g.add_argument("--yaw-var", type=float, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--pitch-var", type=float, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--yaw-std", type=float, default=None, help="standard deviation, deg (instead of --yaw-var)")
-    g.add_argument("--pitch-std", type=float, default=None, help="standard deviation, deg (instead of --pitch-var)")
+    g.add_argument("--yaw-mean", type=_finite, default=0.0, help="degrees (default 0)")
+    g.add_argument("--pitch-mean", type=_finite, default=30.0, help="degrees; + = camera below the face (default 30)")
+    g.add_argument("--yaw-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--pitch-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--yaw-std", type=_finite, default=None, help="standard deviation, deg (instead of --yaw-var)")
+    g.add_argument("--pitch-std", type=_finite, default=None, help="standard deviation, deg (instead of --pitch-var)")
     g.add_argument("--rig", default=None, help="'wheelchair', 'screen' or a RIG.yaml (instead of the above)")
 
 
@@ -64,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gazeaug`` command."""
     from . import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="gazeaug",
         description="Semi-synthetic gaze dataset augmentation (face meshes: see the 'facemesh' command).",
     )
@@ -81,11 +110,13 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render both eyes of a face (image or .glb) at a new head pose into an .npz")
     r.add_argument("input", nargs="?", type=Path, help="face image or facemesh .glb (default: the built-in sample)")
     r.add_argument("-o", "--output", type=Path, required=True, help="output .npz")
-    r.add_argument("--yaw", type=float, default=None, help="head yaw, degrees (with --pitch)")
-    r.add_argument("--pitch", type=float, default=None, help="head pitch, degrees (with --yaw)")
+    r.add_argument("--yaw", type=_finite, default=None, help="head yaw, degrees (with --pitch)")
+    r.add_argument("--pitch", type=_finite, default=None, help="head pitch, degrees (with --yaw)")
     r.add_argument("--original-pose", action="store_true", help="keep the detected head pose")
     r.add_argument("--seed", type=int, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
-    r.add_argument("--distance-to-camera", type=float, default=None, help="head distance in mm (default: the photo's)")
+    r.add_argument(
+        "--distance-to-camera", type=_finite, default=None, help="head distance in mm (default: the photo's)"
+    )
     r.add_argument("--renderer", choices=("raycast", "filament"), default="raycast", help="default raycast")
     _add_input_options(r)
     _add_gaze_options(r)
@@ -95,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     pv = sub.add_parser("preview", help="contact sheet of augmented eye patches and a plot of their distributions")
     pv.add_argument("input", nargs="?", type=Path, help="face image or .glb (default: the built-in sample)")
     pv.add_argument("-o", "--output", type=Path, required=True, help="contact sheet .png (the plot goes beside it)")
-    pv.add_argument("-n", type=int, default=16, help="number of augmented samples (default 16)")
+    pv.add_argument("-n", type=_positive_int, default=16, help="number of augmented samples (default 16)")
     pv.add_argument("--seed", type=int, default=0)
     pv.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
     _add_input_options(pv)
@@ -114,15 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
             "--format",
             choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder"),
         )
-        a.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+        a.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
         a.add_argument("--seed", type=int, default=0)
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
         a.add_argument("--overwrite", action="store_true", help="replace an existing complete OUT.h5")
-        a.add_argument("--limit", type=int, default=None, help="only the first N samples")
+        a.add_argument("--limit", type=_positive_int, default=None, help="only the first N samples")
         a.add_argument("--quiet", action="store_true", help="no progress bar")
         _add_normalization_options(a)
         if name == "augment":
-            a.add_argument("--per-sample", type=int, default=4, help="K augmented samples per input sample (default 4)")
+            a.add_argument(
+                "--per-sample", type=_positive_int, default=4, help="K augmented samples per input sample (default 4)"
+            )
             a.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
             _add_distribution_options(a)
 
@@ -131,9 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", type=Path, required=True, help="model file (.pt)")
     t.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
     t.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
-    t.add_argument("--epochs", type=int, default=10)
-    t.add_argument("--batch-size", type=int, default=256)
-    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--epochs", type=_positive_int, default=10)
+    t.add_argument("--batch-size", type=_positive_int, default=256)
+    t.add_argument("--lr", type=_finite, default=1e-3)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     t.add_argument("--model", default="mobilenet_gaze", help="registered model name")
@@ -147,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument(
         "--format", choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder")
     )
-    ev.add_argument("--limit", type=int, default=None)
+    ev.add_argument("--limit", type=_positive_int, default=None)
     ev.add_argument("--quiet", action="store_true")
 
     pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
@@ -163,9 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
     sm = sub.add_parser("simulate", help="simulated subjects with known gaze, written as a folder dataset")
     sm.add_argument("--faces", type=Path, nargs="*", default=None, help="face photos (default: the built-in sample)")
     sm.add_argument("--rig", default="screen", help="'screen', 'wheelchair' or a RIG.yaml (default screen)")
-    sm.add_argument("--per-face", type=int, default=10, help="images per face (default 10)")
+    sm.add_argument("--per-face", type=_positive_int, default=10, help="images per face (default 10)")
     sm.add_argument("--seed", type=int, default=0)
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
+    sm.add_argument("--overwrite", action="store_true", help="replace an existing dataset folder that simulate wrote")
     sm.add_argument("--quiet", action="store_true")
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
@@ -176,12 +210,12 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
     xp.add_argument("--train-format", default=None)
     xp.add_argument("--test-format", default=None)
-    xp.add_argument("--per-sample", type=int, default=4)
-    xp.add_argument("--epochs", type=int, default=10)
-    xp.add_argument("--batch-size", type=int, default=256)
-    xp.add_argument("--lr", type=float, default=1e-3)
+    xp.add_argument("--per-sample", type=_positive_int, default=4)
+    xp.add_argument("--epochs", type=_positive_int, default=10)
+    xp.add_argument("--batch-size", type=_positive_int, default=256)
+    xp.add_argument("--lr", type=_finite, default=1e-3)
     xp.add_argument("--seed", type=int, default=0)
-    xp.add_argument("--workers", type=int, default=1)
+    xp.add_argument("--workers", type=_positive_int, default=1)
     xp.add_argument("--quiet", action="store_true")
     _add_distribution_options(xp)
 
@@ -189,12 +223,14 @@ def build_parser() -> argparse.ArgumentParser:
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
     br.add_argument("--renderer", choices=("raycast", "filament", "pyrender"), default="raycast")
-    br.add_argument("--n", type=int, default=2000, help="samples (two patches each; default 2000)")
-    br.add_argument("--per-face", type=int, default=16, help="samples per face before a new face (default 16)")
+    br.add_argument("--n", type=_positive_int, default=2000, help="samples (two patches each; default 2000)")
+    br.add_argument(
+        "--per-face", type=_positive_int, default=16, help="samples per face before a new face (default 16)"
+    )
     br.add_argument("--faces", type=Path, nargs="*", default=None, help="face images (default: the built-in sample)")
     br.add_argument("--seed", type=int, default=0)
-    br.add_argument("--workers", type=int, default=1, help="processes (default 1)")
-    br.add_argument("--batch", type=int, default=16, help="samples per render call (default 16)")
+    br.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
+    br.add_argument("--batch", type=_positive_int, default=16, help="samples per render call (default 16)")
     return parser
 
 
@@ -514,7 +550,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     faces = list(args.faces) if args.faces else [None]
     summary = simulate(
-        faces, load_rig(args.rig), args.output, per_face=args.per_face, seed=args.seed, progress=not args.quiet
+        faces,
+        load_rig(args.rig),
+        args.output,
+        per_face=args.per_face,
+        seed=args.seed,
+        progress=not args.quiet,
+        overwrite=args.overwrite,
     )
     print(json.dumps({k: summary[k] for k in ("output", "images", "faces")}))
     return 0
@@ -568,23 +610,82 @@ _COMMANDS = {
 }
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Check every output path of the command before any work starts (see :mod:`facemesh.outputs`)."""
+    from facemesh.outputs import check_output_file, check_output_folder, check_picture_path
+
+    cmd, out = args.command, getattr(args, "output", None)
+    if out is None:  # predict without -o; bench writes nothing
+        return
+    if cmd in ("normalize", "render"):
+        check_output_file(out, (".npz",), what="eye patches file")
+    elif cmd == "preview":
+        check_output_file(out, (".png",), what="contact sheet")
+    elif cmd in ("augment", "normalize-dataset"):
+        check_output_file(out, (".h5", ".hdf5"), what="training set")
+    elif cmd == "train":
+        check_output_file(out, (".pt",), what="model file")
+    elif cmd == "export":
+        check_output_file(out, (".onnx",), what="ONNX file")
+    elif cmd == "predict":
+        check_picture_path(out)
+    elif cmd in ("evaluate", "experiment"):
+        check_output_folder(out, what="report folder")
+    elif cmd == "simulate":
+        check_output_folder(out, what="dataset folder")
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    """What an interrupted command kept, and how to go on (one line)."""
+    out = getattr(args, "output", None)
+    if args.command in ("augment", "normalize-dataset") and out is not None:
+        from .io_h5 import part_path
+
+        part = part_path(out)
+        if part.exists():
+            return f"kept {part} (every sample up to the last flush); run the same command with --resume to continue"
+    if args.command == "train" and out is not None:
+        ckpt = Path(out).with_suffix(".ckpt.pt")
+        if ckpt.exists():
+            return f"kept {ckpt} (the last finished epoch); run the same command with --resume to continue"
+    if args.command == "experiment" and out is not None:
+        return f"the steps that finished are in {out}; run the same command again to redo the rest"
+    return "nothing was written (outputs are written whole or not at all)"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI; returns the exit code."""
+    """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
+    import os
+
     from facemesh.types import FaceMeshError
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # bad options (one line printed, 2), --help or --version (0)
+        return exc.code if isinstance(exc.code, int) else 2
+    prog = f"gazeaug {args.command}"
 
     def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        print(f"gazeaug {args.command}: warning: {message}", file=sys.stderr)
+        print(f"{prog}: warning: {message}", file=sys.stderr)
 
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show
+            _check_outputs(args)
             return _COMMANDS[args.command](args)
     except (FaceMeshError, ImportError, FileNotFoundError) as exc:
-        print(f"gazeaug {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)  # one line, always
         return 2
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted; {_interrupted(args)}", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
+        if os.environ.get("GAZEAUG_DEBUG"):
+            raise
+        what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
+        print(f"{prog}: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from facemesh.conventions import angular_error_deg, pitchyaw_to_vector
 
-from .datasets.base import DatasetReader
+from .datasets.base import DatasetError, DatasetReader
 from .errors import GazeAugError
 from .normalize import NormalizationSettings, NormalizedSample, gaze_direction, normalize_image
 from .train import H5TrainingSet, angular_errors_deg, predict_arrays
@@ -99,11 +99,15 @@ def evaluate_dataset(
 
     from .pipeline import fit_face, landmark_model_for
 
+    if limit is not None and not (isinstance(limit, int) and limit >= 1):
+        raise GazeAugError(f"limit: expected an integer >= 1, got {limit!r}")
+    total = len(reader) if limit is None else min(len(reader), limit)
+    if total == 0:
+        raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
     settings = settings_from_meta(meta)
     detector = landmark_model_for(None, None)
     errors, subjects, rows, skipped = [], [], [], []
     bar = None
-    total = len(reader) if limit is None else min(len(reader), limit)
     if progress:
         from tqdm import tqdm
 

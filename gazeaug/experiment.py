@@ -65,8 +65,18 @@ def simulated_setup(
     out = Path(out_dir)
     n_train, n_test = sizes or ((400, 200) if large else (60, 60))
     train_dir, test_dir = out / "sim_train_screen", out / "sim_test_wheelchair"
-    simulate(faces[:-1], BUILTIN_RIGS["screen"], train_dir, per_face=n_train, seed=seed, progress=progress)
-    simulate(faces[-1:], BUILTIN_RIGS["wheelchair"], test_dir, per_face=n_test, seed=seed + 1, progress=progress)
+    simulate(
+        faces[:-1], BUILTIN_RIGS["screen"], train_dir, per_face=n_train, seed=seed, progress=progress, overwrite=True
+    )
+    simulate(
+        faces[-1:],
+        BUILTIN_RIGS["wheelchair"],
+        test_dir,
+        per_face=n_test,
+        seed=seed + 1,
+        progress=progress,
+        overwrite=True,
+    )
     return train_dir, test_dir
 
 

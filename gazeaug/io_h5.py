@@ -186,7 +186,8 @@ class H5Writer:
         else:
             if self.part.exists():
                 raise GazeAugError(
-                    f"{self.part}: an interrupted run is there; pass --resume to continue it or delete it"
+                    f"{self.part}: an interrupted run left it (no run is writing it now); "
+                    "pass --resume to continue it, or delete it to start over"
                 )
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.part, "w")

@@ -12,11 +12,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from facemesh.build import SAMPLE_NAME, sample_image
-from facemesh.camera import camera_for_image, load_camera
+from facemesh.camera import camera_for_image
 from facemesh.conventions import pixels_to_uv
 from facemesh.face_models import FaceKeypoints, keypoints_for, resolve_face_model
 from facemesh.io import load_image_rgb
-from facemesh.landmarks.base import LandmarkModel, select_face
+from facemesh.landmarks.base import LandmarkModel, paired_face_model, select_face
 from facemesh.mesh import BuildSettings, build_face_mesh, crop_texture
 from facemesh.pose import project_points, solve_head_pose
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose
@@ -68,7 +68,11 @@ class FaceFit:
 def load_input_image(
     path: str | Path | None, camera_path: str | Path | None
 ) -> tuple[NDArray[np.uint8], CameraIntrinsics, str]:
-    """The image (the built-in sample when ``path`` is None) and its camera (a documented default when none)."""
+    """The image (the built-in sample when ``path`` is None) and its camera (a documented default when none).
+
+    Raises:
+        InputError: unreadable image or calibration, or a calibration for another image size.
+    """
     if path is None:
         image = sample_image()
         source = SAMPLE_NAME
@@ -76,7 +80,7 @@ def load_input_image(
         image = load_image_rgb(path)
         source = str(path)
     h, w = image.shape[:2]
-    camera = load_camera(camera_path, image_size=(w, h)) if camera_path else camera_for_image(None, w, h)
+    camera = camera_for_image(camera_path or None, w, h)  # checks the calibration's image size against the image
     return image, camera, source
 
 
@@ -104,15 +108,18 @@ def fit_face(
 ) -> FaceFit:
     """Detect the face (largest by default), solve its pose and find its key points.
 
+    ``face_model`` replaces the detector's own model only when the point counts
+    match (see :func:`facemesh.landmarks.base.paired_face_model`).
+
     Raises:
-        NoFaceError, PoseError, InputError, GazeAugError: as the stages do.
+        NoFaceError, PoseError, InputError, GazeAugError: as the stages do (InputError:
+        a face model whose point count does not match the detector's; PoseError: no
+        pose, or landmarks that do not fit the model, see :mod:`facemesh.pose`).
     """
     face = select_face(detector.detect(image), face_index, source=source)
-    model = face_model if face_model is not None else detector.face_model()
+    model = paired_face_model(face, detector, face_model, source=source)
     n = model.num_points
-    if face.num_points < n:
-        raise GazeAugError(f"{source}: {face.num_points} landmarks for a {n}-point face model")
-    pose = solve_head_pose(face.points_px[:n], model.vertices_mm, camera)
+    pose = solve_head_pose(face.points_px[:n], model.vertices_mm, camera, source=source)
     try:
         kp = keypoints_for(n)
     except Exception as exc:

@@ -264,19 +264,21 @@ def load_rig(spec: str | Path) -> Rig:
     if not isinstance(data, dict):
         raise GazeAugError(f"{p}: expected a mapping of rig fields, got {type(data).__name__}")
     known = set(Rig.__dataclass_fields__)
-    for k in ("camera_position_mm", "image_size_wh"):
-        if isinstance(data.get(k), list):
-            data[k] = tuple(data[k])
-    if isinstance(data.get("target_box_mm"), list):
-        data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
-    unknown = sorted(set(data) - known)
+    unknown = sorted(str(k) for k in set(data) - known)
     if unknown:
         raise GazeAugError(f"{p}: unknown rig fields {unknown} (known: {sorted(known)})")
     data.setdefault("name", p.stem)
     try:
+        for k in ("camera_position_mm", "image_size_wh"):
+            if isinstance(data.get(k), list):
+                data[k] = tuple(data[k])
+        if isinstance(data.get("target_box_mm"), list):
+            data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
         return Rig(**data)
-    except TypeError as exc:
+    except GazeAugError as exc:
         raise GazeAugError(f"{p}: {exc}") from exc
+    except (TypeError, ValueError, OverflowError) as exc:  # a field of the wrong type or size
+        raise GazeAugError(f"{p}: bad rig field value ({exc.__class__.__name__}: {exc})") from exc
 
 
 def sampled_rotations(yaw_pitch_rad: ArrayLike) -> NDArray[np.float64]:

@@ -134,10 +134,17 @@ class SimSubject:
         name: subject id.
         settings: see :class:`SimSettings`.
         rng: random generator (the per-subject kappa offset).
+        source: where the photo came from (its path), named in errors; default ``name``.
     """
 
     def __init__(
-        self, image: NDArray[np.uint8], detector: Any, name: str, settings: SimSettings, rng: np.random.Generator
+        self,
+        image: NDArray[np.uint8],
+        detector: Any,
+        name: str,
+        settings: SimSettings,
+        rng: np.random.Generator,
+        source: str | None = None,
     ):
         from facemesh.camera import camera_for_image
 
@@ -147,9 +154,10 @@ class SimSubject:
         self.name = name
         self.settings = s = settings
         h, w = image.shape[:2]
-        fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=name)
+        where = source or name
+        fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=where)
         if fit.landmarks.num_points < 478:
-            raise GazeAugError(f"{name}: the simulator needs MediaPipe's 478 landmarks (with the iris points)")
+            raise GazeAugError(f"{where}: the simulator needs MediaPipe's 478 landmarks (with the iris points)")
         mesh = mesh_for_fit(fit)
         rm = render_mesh(mesh)
         r, t = mesh.pose.rotation, mesh.pose.translation_mm
@@ -336,8 +344,13 @@ def simulate(
     seed: int = 0,
     settings: SimSettings | None = None,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Write a simulated dataset in the folder format (images, ``labels.csv``, ``simulation.jsonl``).
+
+    The dataset is written into ``OUT.part/`` and swapped in when complete: an
+    existing dataset is replaced only with ``overwrite``, and a failed or
+    interrupted run leaves ``out_dir`` as it was.
 
     Args:
         faces: face photos (None: the built-in astronaut).
@@ -347,20 +360,42 @@ def simulate(
         seed: everything random derives from it (subject i, image j: ``[seed, i, j]``).
         settings: see :class:`SimSettings`.
         progress: show a progress bar.
+        overwrite: replace an existing, non-empty dataset folder that ``simulate`` wrote.
 
     Returns:
         A summary (counts, rig, settings).
+
+    Raises:
+        OutputError: ``out_dir`` is not empty (without ``overwrite``), is a file, or another run writes it.
     """
+    from facemesh.outputs import staged_folder
+
+    s = settings or SimSettings()
+    if per_face < 1:
+        raise GazeAugError(f"--per-face: expected >= 1, got {per_face}")
+    with staged_folder(out_dir, overwrite=overwrite, marker="simulation.json") as part:
+        return _simulate_into(
+            part, Path(out_dir), faces, rig, per_face=per_face, seed=seed, settings=s, progress=progress
+        )
+
+
+def _simulate_into(
+    out: Path,
+    final: Path,
+    faces: Sequence[str | Path | None],
+    rig: Rig,
+    *,
+    per_face: int,
+    seed: int,
+    settings: SimSettings,
+    progress: bool,
+) -> dict[str, Any]:
     from facemesh.io import atomic_write, save_image_rgb
 
     from .datasets.folder import write_labels_csv
     from .pipeline import landmark_model_for, load_input_image
 
-    s = settings or SimSettings()
-    if per_face < 1:
-        raise GazeAugError(f"--per-face: expected >= 1, got {per_face}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    s = settings
     detector = landmark_model_for(None, None)
     w, h = rig.image_size_wh
     k = np.array([[rig.focal_px, 0.0, (w - 1) / 2.0], [0.0, rig.focal_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
@@ -377,7 +412,7 @@ def simulate(
             warnings.simplefilter("ignore")
             image, _, source = load_input_image(face, None)
         subject_id = f"sim{i:02d}"
-        subj = SimSubject(image, detector, subject_id, s, np.random.default_rng([seed, i, 10**6]))
+        subj = SimSubject(image, detector, subject_id, s, np.random.default_rng([seed, i, 10**6]), source=source)
         for j in range(per_face):
             rng = np.random.default_rng([seed, i, j])
             r, t, target = _rig_pose(rig, rng)
@@ -419,7 +454,7 @@ def simulate(
     write_labels_csv(out / "labels.csv", rows)
     with atomic_write(out / "simulation.jsonl") as fh:
         fh.write("".join(json.dumps(t) + "\n" for t in truth).encode("utf-8"))
-    summary = {"output": str(out), "images": len(rows), "faces": len(faces), "rig": rig.as_dict(), "seed": seed}
+    summary = {"output": str(final), "images": len(rows), "faces": len(faces), "rig": rig.as_dict(), "seed": seed}
     with atomic_write(out / "simulation.json") as fh:
         fh.write(
             json.dumps(

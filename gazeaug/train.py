@@ -43,6 +43,7 @@ __all__ = [
 
 MODEL_FORMAT = "gazeaug-model"
 _BLOCK = 2048
+_CKPT_KEYS = ("state_dict", "optimizer", "scheduler", "epoch", "settings", "data_selection", "log", "torch_rng")
 
 
 @dataclass(frozen=True)
@@ -137,6 +138,11 @@ class H5TrainingSet:
                 )
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]])
             settings = f.attrs.get("settings", "{}")
+        known = sorted(set(subj.tolist()))
+        unknown = sorted({str(x) for x in (*(subjects or ()), *(exclude_subjects or ()))} - set(known))
+        if unknown:
+            shown = ", ".join(known[:20]) + (f", ... ({len(known)} in all)" if len(known) > 20 else "")
+            raise GazeAugError(f"{self.path}: no subject {', '.join(unknown)} in this file; its subjects are {shown}")
         keep = np.ones(n, dtype=bool)
         if subjects is not None:
             keep &= np.isin(subj, list(subjects))
@@ -229,34 +235,119 @@ def _save(obj: dict[str, Any], path: Path) -> None:
         fh.write(buf.getvalue())
 
 
+#: What a model or checkpoint file may contain: tensors and plain Python values (dict, list, tuple, str,
+#: int, float, bool, None), nothing else. Files are read with PyTorch's restricted unpickler
+#: (``weights_only=True``), which refuses any other object before building it, so no code a file
+#: carries can run. See docs/model.md, "What a model file may contain".
+LOADER = "torch.load(weights_only=True)"
+
+
+def _load_plain(path: Path, what: str) -> dict[str, Any]:
+    """A ``.pt`` file's top-level dict, read so that no code in the file can run.
+
+    Raises:
+        GazeAugError: missing, truncated, not a PyTorch file, holds objects other than tensors and
+            plain values (a crafted pickle: refused before anything in it is built), or not a dict.
+    """
+    import pickle
+
+    torch = import_torch()
+    if not path.is_file():
+        raise GazeAugError(f"{path}: no such {what} file")
+    try:
+        obj = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines()]
+        globals_ = [ln for ln in lines if "GLOBAL" in ln or "Unsupported global" in ln]
+        if globals_:  # the file names a Python callable: a crafted pickle, refused before it is built
+            raise GazeAugError(
+                f"{path}: not a {what}: it holds objects other than tensors and plain values "
+                f"({globals_[0]}); refused without running them"
+            ) from exc
+        raise GazeAugError(f"{path}: not a {what} (truncated, damaged or not a PyTorch file)") from exc
+    except Exception as exc:  # noqa: BLE001 - torch raises many kinds for damaged files
+        raise GazeAugError(
+            f"{path}: not a {what} (truncated, damaged or not a PyTorch file: {exc.__class__.__name__})"
+        ) from exc
+    if not isinstance(obj, dict):
+        raise GazeAugError(f"{path}: not a {what} (expected a dict, got {type(obj).__name__})")
+    return obj
+
+
+def _state_dict(obj: dict[str, Any], path: Path, what: str) -> dict[str, Any]:
+    torch = import_torch()
+    sd = obj.get("state_dict")
+    if not isinstance(sd, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in sd.items()):
+        raise GazeAugError(f"{path}: not a {what} (no 'state_dict' of named tensors)")
+    return sd
+
+
+def _load_weights(model: Any, state: dict[str, Any], path: Path, what: str) -> None:
+    """Load ``state`` into ``model``, or say in one line how they disagree (names and shapes)."""
+    want = {k: tuple(v.shape) for k, v in model.state_dict().items()}
+    got = {k: tuple(v.shape) for k, v in state.items()}
+    missing, extra = sorted(set(want) - set(got)), sorted(set(got) - set(want))
+    shapes = sorted(k for k in set(want) & set(got) if want[k] != got[k])
+    problems = []
+    if missing:
+        problems.append(f"{len(missing)} tensors missing (first {missing[0]!r})")
+    if extra:
+        problems.append(f"{len(extra)} unexpected (first {extra[0]!r})")
+    if shapes:
+        k = shapes[0]
+        problems.append(f"{len(shapes)} of other shapes (first {k!r}: expected {want[k]}, got {got[k]})")
+    if problems:
+        raise GazeAugError(f"{path}: the weights do not fit the {what}'s model: {'; '.join(problems)}")
+    model.load_state_dict(state)
+
+
 def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, Any]]:
     """A model saved by :func:`train` and its metadata (name, options, preprocessing, normalization, log).
 
+    The file is read with PyTorch's restricted unpickler (tensors and plain values only): a file
+    that carries code is refused and nothing in it runs.
+
     Raises:
-        GazeAugError: missing, truncated or not a gazeaug model.
+        GazeAugError: missing, truncated, crafted or not a gazeaug model.
     """
-    torch = import_torch()
     p = Path(path)
-    if not p.is_file():
-        raise GazeAugError(f"{p}: no such model file")
-    try:
-        obj = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001 - torch raises many kinds for damaged files
-        raise GazeAugError(
-            f"{p}: not a readable model file (truncated or not a PyTorch file: {exc.__class__.__name__})"
-        ) from exc
-    if not isinstance(obj, dict) or obj.get("format") != MODEL_FORMAT:
+    obj = _load_plain(p, "gazeaug model")
+    if obj.get("format") != MODEL_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug model (no '{MODEL_FORMAT}' format mark)")
-    if obj.get("preprocessing", {}).get("version") != PREPROCESSING["version"]:
-        raise GazeAugError(f"{p}: made with another input preprocessing ({obj.get('preprocessing')})")
-    model = create_model(obj["model"], **obj.get("model_options", {}))
+    preprocessing = obj.get("preprocessing")
+    if not isinstance(preprocessing, dict) or preprocessing.get("version") != PREPROCESSING["version"]:
+        raise GazeAugError(f"{p}: made with another input preprocessing ({preprocessing})")
+    name, options = obj.get("model"), obj.get("model_options", {})
+    if not isinstance(name, str) or not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
+        raise GazeAugError(f"{p}: not a gazeaug model (bad 'model' or 'model_options' entries)")
+    state = _state_dict(obj, p, "gazeaug model")
     try:
-        model.load_state_dict(obj["state_dict"])
-    except (RuntimeError, KeyError) as exc:
-        raise GazeAugError(f"{p}: the weights do not fit model {obj['model']!r} ({exc})") from exc
+        model = create_model(name, **options)
+    except TypeError as exc:
+        raise GazeAugError(f"{p}: model {name!r} does not take the options {options} ({exc})") from exc
+    _load_weights(model, state, p, f"gazeaug model ({name})")
     model.to(_device(device)).eval()
     meta = {k: v for k, v in obj.items() if k != "state_dict"}
     return model, meta
+
+
+def _data_selection(
+    train_path: str | Path, val_path: str | Path | None, val_subjects: Sequence[str] | None
+) -> dict[str, Any]:
+    """What a run trains and validates on (a resumed run must use exactly the same)."""
+    return {
+        "train_path": str(Path(train_path).resolve()),
+        "val_path": None if val_path is None else str(Path(val_path).resolve()),
+        "val_subjects": sorted(set(val_subjects or [])),
+    }
+
+
+def _differences(then: dict[str, Any], now: dict[str, Any]) -> list[str]:
+    return [
+        f"{k}: {then.get(k)!r} then, {now.get(k)!r} now"
+        for k in sorted(set(then) | set(now))
+        if then.get(k) != now.get(k)
+    ]
 
 
 def train(
@@ -283,13 +374,28 @@ def train(
     Raises:
         GazeAugError: bad files or settings.
     """
-    torch = import_torch()
+    from facemesh.outputs import output_lock
+
     s = settings or TrainSettings()
     out = Path(output)
     if out.suffix != ".pt":
         raise GazeAugError(f"{out}: the model file must end in .pt")
     if val_path is not None and val_subjects:
         raise GazeAugError("give --val or --val-subjects, not both")
+    with output_lock(out):  # held for the whole run: a second run on the same model is refused
+        return _train(train_path, out, s, val_path, val_subjects, resume, progress)
+
+
+def _train(
+    train_path: str | Path,
+    out: Path,
+    s: TrainSettings,
+    val_path: str | Path | None,
+    val_subjects: Sequence[str] | None,
+    resume: bool,
+    progress: bool,
+) -> list[dict[str, Any]]:
+    torch = import_torch()
     ckpt_path = out.with_suffix(".ckpt.pt")
     data = H5TrainingSet(train_path, exclude_subjects=val_subjects or None)
     val = None
@@ -307,18 +413,37 @@ def train(
     )
     log: list[dict[str, Any]] = []
     start_epoch = 0
+    selection = _data_selection(train_path, val_path, val_subjects)
     if resume:
         if not ckpt_path.is_file():
             raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
-        ck = torch.load(ckpt_path, map_location=device, weights_only=False)
-        if ck.get("settings") != asdict(s) or ck.get("train_path") != str(Path(train_path).resolve()):
-            raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings or data")
-        model.load_state_dict(ck["state_dict"])
-        opt.load_state_dict(ck["optimizer"])
-        sched.load_state_dict(ck["scheduler"])
-        log = list(ck["log"])
-        start_epoch = int(ck["epoch"])
-        torch.set_rng_state(ck["torch_rng"])
+        ck = _load_plain(ckpt_path, "gazeaug checkpoint")
+        missing = [k for k in _CKPT_KEYS if k not in ck]
+        if missing == ["data_selection"]:
+            raise GazeAugError(
+                f"{ckpt_path}: made by an older gazeaug that did not record its data selection; start over"
+            )
+        if missing:
+            raise GazeAugError(f"{ckpt_path}: not a gazeaug checkpoint (missing {missing})")
+        changed = _differences(ck.get("settings") or {}, asdict(s))
+        if changed:
+            raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings ({'; '.join(changed)})")
+        changed = _differences(ck.get("data_selection") or {}, selection)
+        if changed:
+            raise GazeAugError(
+                f"{ckpt_path}: the checkpoint was made with another data selection ({'; '.join(changed)})"
+            )
+        _load_weights(model, _state_dict(ck, ckpt_path, "gazeaug checkpoint"), ckpt_path, "gazeaug checkpoint")
+        try:
+            opt.load_state_dict(ck["optimizer"])
+            sched.load_state_dict(ck["scheduler"])
+            log = [dict(r) for r in ck["log"]]
+            start_epoch = int(ck["epoch"])
+            torch.set_rng_state(ck["torch_rng"])
+        except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+            raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint ({exc.__class__.__name__}: {exc})") from exc
+        if not 0 <= start_epoch <= s.epochs or len(log) != start_epoch:
+            raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (epoch {start_epoch}, {len(log)} log rows)")
     bar = None
     if progress:
         from tqdm import tqdm
@@ -365,7 +490,7 @@ def train(
                 "scheduler": sched.state_dict(),
                 "epoch": epoch + 1,
                 "settings": asdict(s),
-                "train_path": str(Path(train_path).resolve()),
+                "data_selection": selection,
                 "log": log,
                 "torch_rng": torch.get_rng_state(),
             },

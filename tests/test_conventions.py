@@ -89,6 +89,30 @@ def test_pixels_to_uv_pixel_centres():
     np.testing.assert_allclose(cv.uv_to_pixels([[0.005, 0.01]], (100, 50)), [[0.0, 0.0]])
 
 
+def test_gltf_uv_to_bottom_left_uv_hand_values():
+    # The texture's four corners: glTF's top-left (0, 0) is (0, 1) with the
+    # origin at the bottom-left, and so on (u kept, v -> 1 - v).
+    corners = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]
+    out = cv.gltf_uv_to_bottom_left_uv(corners)
+    assert out.dtype == np.float64 and out.shape == (4, 2)
+    np.testing.assert_array_equal(out, [[0.0, 1.0], [1.0, 1.0], [0.0, 0.0], [1.0, 0.0]])
+    # Centre of the top-left pixel of a 4 x 2 (W x H) texture: glTF uv
+    # (0.5 / 4, 0.5 / 2) = (0.125, 0.25); seen from the bottom-left corner it
+    # is 1.5 pixels of 2 up: v = 1.5 / 2 = 0.75.
+    np.testing.assert_array_equal(cv.gltf_uv_to_bottom_left_uv([[0.125, 0.25]]), [[0.125, 0.75]])
+    np.testing.assert_array_equal(
+        cv.gltf_uv_to_bottom_left_uv(cv.pixels_to_uv([[0.0, 0.0]], (0, 0), (4, 2))), [[0.125, 0.75]]
+    )
+
+
+def test_gltf_uv_to_bottom_left_uv_is_its_own_inverse():
+    uv = np.random.default_rng(0).uniform(0.0, 1.0, size=(20, 2)).astype(np.float32)
+    before = uv.copy()
+    once = cv.gltf_uv_to_bottom_left_uv(uv)
+    np.testing.assert_allclose(cv.gltf_uv_to_bottom_left_uv(once), uv, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(uv, before)  # the input is not changed
+
+
 def test_angular_error_hand_values():
     assert cv.angular_error_deg([1, 0, 0], [0, 1, 0]) == pytest.approx(90.0)
     assert cv.angular_error_deg([1, 0, 0], [2, 0, 0]) == pytest.approx(0.0)

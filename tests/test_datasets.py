@@ -421,3 +421,30 @@ def test_ethxgaze_normalized_reader_and_run(eth_normalized_root, tmp_path):
     d = read_h5(tmp_path / "n.h5")
     # the face-frame gaze of the training rows is the file's gaze (the virtual camera is the normalized one)
     np.testing.assert_allclose(d["gaze"], [[-0.1, 0.2], [0.05, -0.3]], atol=0.02)
+
+
+def _read_all(root):
+    """Open a dataset and read every sample description (images are not decoded)."""
+    return [(s.subject, s.camera, s.gaze_target_mm, s.gaze_vector) for s in open_dataset(root)]
+
+
+@pytest.mark.parametrize(
+    "fixture, label_file",
+    [
+        ("mpii_root", "p00/p00.txt"),
+        ("mpii_root", "p00/Calibration/Camera.mat"),
+        ("eth_root", "data/annotation_train/subject0000.csv"),
+        ("eth_root", "calibration/cam_calibration/cam00.xml"),
+        ("gazecapture_root", "GazeCapture_supplementary.h5"),
+        ("eth_normalized_root", "subject0003.h5"),
+    ],
+)
+def test_fuzzed_label_files_of_every_reader(request, tmp_path, fixture, label_file):
+    """Damaged label and calibration files: the reader's typed error (exit 2 at the CLI), never another one."""
+    from helpers import expect_typed_error, mutations
+
+    root = tmp_path / "ds"
+    shutil.copytree(request.getfixturevalue(fixture), root)
+    valid = (root / label_file).read_bytes()
+    for data in mutations(valid, seed=len(label_file), n=20):
+        expect_typed_error(lambda p: _read_all(root), root / label_file, data)

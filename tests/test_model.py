@@ -9,56 +9,13 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the gaze model needs torch (pip install 'gazeaug[train]')")
 
+from helpers import synthetic_h5 as _synthetic_h5  # noqa: E402
+
 from gazeaug.cli import main  # noqa: E402
 from gazeaug.errors import GazeAugError  # noqa: E402
-from gazeaug.io_h5 import H5Writer, Rows  # noqa: E402
 from gazeaug.models import create_model  # noqa: E402
 from gazeaug.models.preprocess import prepare_inputs  # noqa: E402
 from gazeaug.train import H5TrainingSet, TrainSettings, load_model, predict_arrays, train  # noqa: E402
-
-
-def _synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0):
-    """A training set whose gaze pitch is readable from the images: brightness encodes it."""
-    rng = np.random.default_rng(seed)
-    gaze = rng.uniform(-0.4, 0.4, (n, 2)).astype(np.float32)
-    level = (128 + 250 * gaze[:, 0]).clip(0, 255)
-    eyes = (level[:, None, None, None] + rng.normal(0, 3, (n, 36, 60, 3))).clip(0, 255).astype(np.uint8)
-    head = rng.uniform(-0.3, 0.3, (n, 2)).astype(np.float32)
-    if nan_rows:
-        gaze[:nan_rows] = np.nan
-    eye3 = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
-    rows = Rows(
-        {
-            "left_eye": eyes,
-            "right_eye": eyes,
-            "head_pose": head,
-            "gaze": gaze,
-            "head_pose_vector": np.zeros((n, 3)),
-            "gaze_vector": np.zeros((n, 3)),
-            "head_pose_left": head,
-            "head_pose_right": head,
-            "gaze_left": gaze,
-            "gaze_right": gaze,
-            "R_norm_left": eye3,
-            "R_norm_right": eye3,
-            "R_norm_face": eye3,
-            "subject": np.array([subjects[i % len(subjects)].encode() for i in range(n)]),
-            "source_index": np.arange(n),
-            "sampled_yaw_pitch": np.full((n, 2), np.nan),
-        }
-    )
-    w = H5Writer(
-        path,
-        {
-            "settings": {
-                "normalization": {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
-            }
-        },
-        (60, 36),
-    )
-    w.append(rows, n - 1)
-    w.finish()
-    return path
 
 
 def test_registry_and_shapes():
@@ -127,8 +84,10 @@ def test_bad_training_inputs(tmp_path):
     with pytest.raises(GazeAugError, match="NaN"):
         H5TrainingSet(_synthetic_h5(tmp_path / "nan.h5", nan_rows=3))
     good = _synthetic_h5(tmp_path / "g.h5")
-    with pytest.raises(GazeAugError, match="no rows"):
+    with pytest.raises(GazeAugError, match="no subject zz in this file; its subjects are a, b"):
         H5TrainingSet(good, subjects=["zz"])
+    with pytest.raises(GazeAugError, match="no rows"):
+        H5TrainingSet(good, exclude_subjects=["a", "b"])
     import h5py
 
     with h5py.File(tmp_path / "missing.h5", "w") as f:
@@ -144,7 +103,7 @@ def test_bad_training_inputs(tmp_path):
 
 def test_model_files_that_are_not_ours(tmp_path):
     (tmp_path / "x.pt").write_bytes(b"not a model")
-    with pytest.raises(GazeAugError, match="not a readable model"):
+    with pytest.raises(GazeAugError, match="not a gazeaug model .truncated, damaged or not a PyTorch file"):
         load_model(tmp_path / "x.pt")
     torch.save({"weights": 1}, tmp_path / "y.pt")
     with pytest.raises(GazeAugError, match="not a gazeaug model"):
@@ -153,9 +112,9 @@ def test_model_files_that_are_not_ours(tmp_path):
     train(data, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
     blob = (tmp_path / "m.pt").read_bytes()
     (tmp_path / "cut.pt").write_bytes(blob[: len(blob) // 2])
-    with pytest.raises(GazeAugError, match="not a readable model"):
+    with pytest.raises(GazeAugError, match="not a gazeaug model .truncated, damaged or not a PyTorch file"):
         load_model(tmp_path / "cut.pt")
-    with pytest.raises(GazeAugError, match="no such model"):
+    with pytest.raises(GazeAugError, match="no such gazeaug model file"):
         load_model(tmp_path / "none.pt")
 
 

@@ -287,3 +287,21 @@ def test_head_frame_of_another_convention_is_refused(ut, tmp_path):
     sample = next(iter(UTMultiview(tmp_path / "copy")))
     with pytest.raises(DatasetError, match="head-frame convention"):
         fit_from_dataset(sample, sample.load_image())
+
+
+@pytest.mark.parametrize(
+    "name", ["gazedata.csv", "monitor.txt", "img000/headpose.txt", "img000/cparams/00000001.txt"]
+)
+def test_fuzzed_files_give_typed_errors(ut, tmp_path, name):
+    """Damaged files: the reader's typed error (exit 2 at the CLI), never another exception."""
+    from helpers import expect_typed_error, mutations
+
+    raw = _copy(ut[0], tmp_path / "copy")
+    valid = (raw / name).read_bytes()
+    root = raw.parent.parent
+
+    def read(_):
+        return [(s.subject, s.camera) for s in open_dataset(root)]
+
+    for data in mutations(valid, seed=len(name), n=20):
+        expect_typed_error(read, raw / name, data)

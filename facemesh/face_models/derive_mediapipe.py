@@ -30,6 +30,16 @@ Steps:
    "Variation and extrema of human interpupillary distance").
 6. Triangles: :func:`facemesh.face_models.triangulation.clean_triangulation_from_edges`
    (computed before step 4's final levelling, which needs the outer contour).
+
+Reproducibility: the vertices are floating-point results and may differ
+between machines by ~1e-13 mm (BLAS, summation order). The triangles and the
+partner permutation are combinatorial and must not: the one decision that
+sat on an exact tie, which of two mirror-image ears of the (symmetric) mouth
+opening the ear clipper cuts first, is taken by an explicit rule (ears within
+``EAR_QUALITY_TIE_RAD`` of the best are tied; the largest apex vertex index
+wins), see :func:`facemesh.face_models.triangulation.ear_clip`. Before that
+rule, rounding noise decided it and 4 of the 898 triangles (two flipped quad
+diagonals at the mouth corners) changed from machine to machine.
 """
 
 from __future__ import annotations
@@ -193,22 +203,54 @@ def level_to_contour_plane(head: NDArray[np.float64], triangles: NDArray[np.int6
     return head @ np.stack([x, y, z]).T
 
 
-def derive() -> dict[str, NDArray[np.generic]]:
-    """Run all steps; returns the arrays stored in ``mediapipe468.npz``."""
+def derivation_inputs() -> tuple[list[str], list[NDArray[np.float64]], list[tuple[int, int]]]:
+    """Everything the derivation reads from installed wheels (step 1 and the edge list).
+
+    Returns:
+        ``(names, shapes, edges)``: the names of the photos where MediaPipe
+        found a face; their (478, 3) float64 landmarks as ``(x_px, y_px,
+        z * W)`` (image frame x, y in pixels; z away from the camera in the
+        same pixel units); and ``FACEMESH_TESSELATION`` as a sorted list of
+        (i, j) vertex index pairs.
+    """
     from ..landmarks.mediapipe import import_mediapipe_face_mesh
 
     names, shapes = landmark_shapes(wheel_photos())
     lfw_names, lfw_shapes = landmark_shapes(lfw_photos(), required=False)
-    names += lfw_names
-    shapes += lfw_shapes
+    edges = sorted((int(a), int(b)) for a, b in import_mediapipe_face_mesh().FACEMESH_TESSELATION)
+    return names + lfw_names, shapes + lfw_shapes, edges
+
+
+def derive_from_landmarks(
+    names: list[str], shapes: list[NDArray[np.float64]], edges: list[tuple[int, int]]
+) -> dict[str, NDArray[np.generic]]:
+    """Steps 2-6 on given landmarks; returns the arrays stored in ``mediapipe468.npz``.
+
+    Args:
+        names: one name per face (stored as ``sources``).
+        shapes: per face, (478, 3) float64 MediaPipe landmarks as ``(x_px, y_px, z * W)``.
+        edges: MediaPipe's tessellation edges, (i, j) vertex index pairs.
+
+    Returns:
+        ``vertices_mm`` (468, 3) float64, millimetres, head frame;
+        ``triangles`` (898, 3) int64 vertex indices, right-hand normals out of
+        the face; ``mirror`` (468,) int64, the left-right partner of each
+        point; ``sources`` (F,) str, the photos used.
+
+    The triangles and the partner permutation are combinatorial decisions
+    taken by exact rules (see
+    :func:`facemesh.face_models.triangulation.ear_clip` for the one tie the
+    symmetric shape produces), so noise of the order of floating-point
+    rounding in ``shapes`` (another machine's BLAS or summation order) moves
+    the vertices by ~1e-13 mm and changes neither.
+    """
     # The 468 mesh points and the two iris centres (the ring around each iris
     # is left out: it only follows the eye).
     keep = list(range(NUM_MESH_POINTS)) + list(IRIS_CENTRES)
-    mean = procrustes_mean([s[keep] for s in shapes])
+    mean = procrustes_mean([np.asarray(s, dtype=np.float64)[keep] for s in shapes])
     perm468 = mirror_partners(mean[:NUM_MESH_POINTS])
     perm = np.concatenate([perm468, [NUM_MESH_POINTS + 1, NUM_MESH_POINTS]])
     head = symmetric_head_frame(mean, perm)
-    edges = import_mediapipe_face_mesh().FACEMESH_TESSELATION
     triangles = clean_triangulation_from_edges(edges, head[:NUM_MESH_POINTS])
     head = level_to_contour_plane(head, triangles)
     return {
@@ -217,6 +259,11 @@ def derive() -> dict[str, NDArray[np.generic]]:
         "mirror": perm468,
         "sources": np.array(names),
     }
+
+
+def derive() -> dict[str, NDArray[np.generic]]:
+    """Run all steps; returns the arrays stored in ``mediapipe468.npz`` (see :func:`derive_from_landmarks`)."""
+    return derive_from_landmarks(*derivation_inputs())
 
 
 def main(argv: list[str] | None = None) -> None:

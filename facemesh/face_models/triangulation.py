@@ -8,6 +8,12 @@ surface with four holes: the outer face contour, both eye openings and the
 mouth opening. We orient it consistently (right-hand normals out of the face)
 and close the eyes and the mouth by ear clipping, so the iris and sclera get
 texture. Only the outer contour stays open.
+
+Deterministic: apart from the ear clipper's choice of ear, every step is
+integer logic over sorted containers; the ear clipper compares with explicit
+tolerances and breaks ties by vertex index (:func:`ear_clip`), so rounding
+noise in the vertices (another machine's BLAS or summation order) cannot
+change a triangle.
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ __all__ = [
     "orient_consistently",
     "ear_clip",
     "clean_triangulation_from_edges",
+    "EAR_QUALITY_TIE_RAD",
+    "COLLINEAR_REL_TOL",
 ]
 
 
@@ -138,16 +146,53 @@ def orient_consistently(triangles: ArrayLike, vertices: ArrayLike, outward: Arra
     return tri
 
 
+#: Ears whose quality (smallest angle, radians) lies within this of the best
+#: ear's are tied; the tie is broken by vertex index (see :func:`ear_clip`).
+#: Far above rounding noise (~1e-14 rad between machines) and far below the
+#: gaps between genuinely different ears (>= 1e-2 rad on the shipped model).
+EAR_QUALITY_TIE_RAD = 1e-9
+
+#: Orientation tests treat a doubled signed triangle area within this fraction
+#: of the polygon's squared size as zero (three points on a line).
+COLLINEAR_REL_TOL = 1e-12
+
+
 def ear_clip(loop: list[int], points_2d: ArrayLike) -> list[tuple[int, int, int]]:
     """Triangulate a simple polygon by ear clipping, always cutting the best-shaped ear.
 
+    Deterministic by construction: the choice of ear is a combinatorial
+    decision on floating-point values, so it follows exact rules that do not
+    depend on rounding noise, nor on where ``loop`` starts:
+
+    * An ear is a convex corner ``(prev, apex, next)`` whose triangle holds no
+      other polygon vertex. Orientation tests use a tolerance of
+      :data:`COLLINEAR_REL_TOL` times the squared size of the polygon: a corner
+      whose three points are (nearly) on a line is not an ear, and a vertex
+      on (or within that tolerance of) an ear's edge blocks the ear.
+    * An ear's quality is its smallest angle (fat triangles first). All ears
+      within :data:`EAR_QUALITY_TIE_RAD` of the best quality are tied, and
+      among them **the ear whose apex has the largest vertex index** is cut.
+
+    Exact ties are not rare: a left-right symmetric polygon (the mouth of a
+    symmetric face) offers mirror-image ears of equal quality, whose computed
+    qualities differ only by rounding (~1e-14 rad) and so, before this rule,
+    by machine. (Largest rather than smallest index: that is the choice the
+    shipped model was built with, so it did not change.)
+
     Args:
         loop: vertex indices of the polygon, in order (either sense).
-        points_2d: (N, 2) float positions indexed by vertex index.
+        points_2d: (N, 2) float positions indexed by vertex index (any unit).
 
     Returns:
-        len(loop) - 2 triangles with the same rotational sense as ``loop``.
+        len(loop) - 2 triangles with the same rotational sense as ``loop``;
+        each ear as ``(prev, apex, next)`` in the order cut, the last triangle
+        as the three remaining vertices in loop order.
+
+    Raises:
+        InputError: the polygon is not simple (no ear left to cut).
     """
+    from ..types import InputError
+
     p = np.asarray(points_2d, dtype=np.float64)
     idx = list(loop)
     signed = 0.5 * sum(
@@ -155,41 +200,43 @@ def ear_clip(loop: list[int], points_2d: ArrayLike) -> list[tuple[int, int, int]
         for i in range(len(idx))
     )
     sense = 1.0 if signed > 0 else -1.0
+    pts = p[idx]
+    size = float(np.max(pts.max(axis=0) - pts.min(axis=0))) if len(idx) else 0.0
+    area_tol = COLLINEAR_REL_TOL * size * size
     out: list[tuple[int, int, int]] = []
 
     def cross(o: int, a: int, b: int) -> float:
-        return float((p[a, 0] - p[o, 0]) * (p[b, 1] - p[o, 1]) - (p[a, 1] - p[o, 1]) * (p[b, 0] - p[o, 0]))
+        """Doubled signed area of (o, a, b), positive when they turn as the loop does."""
+        return sense * float((p[a, 0] - p[o, 0]) * (p[b, 1] - p[o, 1]) - (p[a, 1] - p[o, 1]) * (p[b, 0] - p[o, 0]))
+
+    def smallest_angle(a: int, b: int, c: int) -> float:
+        tri_pts = p[[a, b, c]]
+        angles = []
+        for k in range(3):
+            u = tri_pts[(k + 1) % 3] - tri_pts[k]
+            w = tri_pts[(k + 2) % 3] - tri_pts[k]
+            cosang = u @ w / (np.linalg.norm(u) * np.linalg.norm(w) + 1e-300)
+            angles.append(float(np.arccos(np.clip(cosang, -1, 1))))
+        return min(angles)
 
     while len(idx) > 3:
-        best, best_q = -1, -np.inf
         n = len(idx)
+        ears: list[tuple[float, int, int]] = []  # (quality, apex vertex, position in idx)
         for i in range(n):
             a, b, c = idx[i - 1], idx[i], idx[(i + 1) % n]
-            if cross(a, b, c) * sense <= 0:
-                continue  # reflex corner
-            inside = False
-            for q in idx:
-                if q in (a, b, c):
-                    continue
-                if cross(a, b, q) * sense >= 0 and cross(b, c, q) * sense >= 0 and cross(c, a, q) * sense >= 0:
-                    inside = True
-                    break
-            if inside:
-                continue
-            # Quality: smallest angle of the ear (prefer fat triangles).
-            tri_pts = p[[a, b, c]]
-            angles = []
-            for k in range(3):
-                u = tri_pts[(k + 1) % 3] - tri_pts[k]
-                w = tri_pts[(k + 2) % 3] - tri_pts[k]
-                cosang = u @ w / (np.linalg.norm(u) * np.linalg.norm(w) + 1e-300)
-                angles.append(np.arccos(np.clip(cosang, -1, 1)))
-            q_val = min(angles)
-            if q_val > best_q:
-                best, best_q = i, q_val
-        if best < 0:
-            raise ValueError("ear clipping failed: the polygon is not simple")
-        n = len(idx)
+            if cross(a, b, c) <= area_tol:
+                continue  # reflex or flat corner
+            if any(
+                cross(a, b, q) >= -area_tol and cross(b, c, q) >= -area_tol and cross(c, a, q) >= -area_tol
+                for q in idx
+                if q not in (a, b, c)
+            ):
+                continue  # another vertex inside or on the ear
+            ears.append((smallest_angle(a, b, c), b, i))
+        if not ears:
+            raise InputError("ear clipping failed: the polygon is not simple")
+        best_q = max(q for q, _, _ in ears)
+        _, _, best = max((e for e in ears if e[0] >= best_q - EAR_QUALITY_TIE_RAD), key=lambda e: e[1])
         out.append((idx[best - 1], idx[best], idx[(best + 1) % n]))
         del idx[best]
     out.append((idx[0], idx[1], idx[2]))
@@ -209,6 +256,8 @@ def clean_triangulation_from_edges(
 
     Returns:
         (M, 3) int64, right-hand normals pointing out of the face (toward -z of the head frame).
+        The same on every machine: the holes are closed by :func:`ear_clip`,
+        whose choices follow exact tie-breaking rules.
     """
     v = np.asarray(vertices_head_mm, dtype=np.float64)
     cliques = triangles_from_edges(edges)

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from ..types import FaceLandmarks, FaceModel, InputError, NoFaceError
 
-__all__ = ["LandmarkModel", "select_face"]
+__all__ = ["LandmarkModel", "select_face", "paired_face_model"]
 
 
 @runtime_checkable
@@ -55,3 +55,32 @@ def select_face(
     if face_index >= len(ranked):
         raise NoFaceError(f"{source}: face index {face_index} asked for, but only {len(ranked)} face(s) found")
     return ranked[int(face_index)]
+
+
+def paired_face_model(
+    face: FaceLandmarks, detector: LandmarkModel, face_model: FaceModel | None = None, *, source: str = "image"
+) -> FaceModel:
+    """The face model whose point i is paired with landmark i of ``face``.
+
+    The detector's own model by default. A model given instead must have as
+    many points as the detector's own model or as its landmarks (MediaPipe:
+    468 or 478): pairing is by index, so a model of another layout (MPII's 6
+    points, dlib's 68, ...) would be paired with unrelated landmarks. Such a
+    model needs its own landmarks (an :class:`~facemesh.landmarks.ArrayLandmarkModel`,
+    ``--landmarks`` on the command lines).
+
+    Raises:
+        InputError: the counts do not match (the message names the model, both counts and the way out).
+    """
+    own = detector.face_model()
+    model = own if face_model is None else face_model
+    n, m = model.num_points, face.num_points
+    if face_model is not None and n not in (own.num_points, m):
+        raise InputError(
+            f"{source}: face model {model.name!r} has {n} points, but the landmark model {detector.name!r} gives {m} "
+            f"landmarks (its own face model has {own.num_points}); landmark i is paired with model point i, so the "
+            f"counts must match: pass --landmarks with the model's own {n} points"
+        )
+    if m < n:
+        raise InputError(f"{source}: the landmark model gives {m} points, the face model {model.name!r} has {n}")
+    return model

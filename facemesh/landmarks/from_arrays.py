@@ -68,8 +68,8 @@ def load_landmarks_file(path: str | Path) -> NDArray[np.float64]:
             raise InputError(f"{p}: unknown landmark format {suffix!r} (expected .npy, .json or .csv)")
     except InputError:
         raise
-    except (ValueError, TypeError, OSError) as exc:
-        raise InputError(f"{p}: cannot read landmarks: {exc}") from exc
+    except (ValueError, TypeError, OSError, EOFError, RecursionError, OverflowError) as exc:
+        raise InputError(f"{p}: cannot read landmarks: {exc.__class__.__name__}: {exc}") from exc
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise InputError(f"{p}: expected landmarks of shape (N, 2), got {arr.shape}")
     if not np.all(np.isfinite(arr)):

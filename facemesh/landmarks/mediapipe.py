@@ -7,10 +7,25 @@ the top-left *corner* of the image; we convert to OpenCV pixel coordinates
 (pixel centres at integers): ``x_px = x * W - 0.5``, ``y_px = y * H - 0.5``.
 Its z is a relative depth in units of the image width, smaller toward the
 camera; ``points_3d`` holds ``(x_px, y_px, z * W)``.
+
+MediaPipe's native code logs to the process's stderr (file descriptor 2)
+while its graph is built and first run ("INFO: Created TensorFlow Lite
+XNNPACK delegate for CPU.", "WARNING: All log messages before
+absl::InitializeLog() ...", ``W0000 ...`` lines). Before mediapipe is
+imported, ``GLOG_minloglevel=2`` and ``TF_CPP_MIN_LOG_LEVEL=2`` are set
+(unless already set: errors still show), and, since some of those lines are
+written straight to descriptor 2, descriptor 2 points to ``/dev/null`` while
+the graph is created and while it processes its first image (then it is
+restored, also when that fails). Pass ``quiet=False`` to see them.
 """
 
 from __future__ import annotations
 
+import os
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from typing import Any
 
 import numpy as np
@@ -18,7 +33,13 @@ from numpy.typing import NDArray
 
 from ..types import FaceLandmarks, FaceModel
 
-__all__ = ["MediaPipeFaceMesh", "import_mediapipe_face_mesh", "MEDIAPIPE_INSTALL_HINT"]
+__all__ = [
+    "MediaPipeFaceMesh",
+    "import_mediapipe_face_mesh",
+    "native_stderr_silenced",
+    "MEDIAPIPE_INSTALL_HINT",
+    "QUIET_LOG_ENV",
+]
 
 MEDIAPIPE_INSTALL_HINT = (
     "MediaPipe Face Mesh needs the legacy solutions API shipped by mediapipe 0.10.21: "
@@ -26,8 +47,66 @@ MEDIAPIPE_INSTALL_HINT = (
 )
 
 
+#: Environment variables set (when unset) before mediapipe is imported: glog and TensorFlow log errors only.
+QUIET_LOG_ENV = {"GLOG_minloglevel": "2", "TF_CPP_MIN_LOG_LEVEL": "2"}
+
+_FD2_LOCK = threading.RLock()
+
+
+@contextmanager
+def native_stderr_silenced(enabled: bool = True) -> Iterator[None]:
+    """Point file descriptor 2 to ``/dev/null`` inside the block; always restore it.
+
+    Python's ``sys.stderr`` is flushed first, so nothing written before the
+    block is lost. One thread at a time (a re-entrant lock), so concurrent
+    blocks cannot restore each other's ``/dev/null``. Where descriptor 2
+    cannot be duplicated (closed, or no ``/dev/null``), the block runs with
+    stderr untouched.
+    """
+    if not enabled:
+        yield
+        return
+    with _FD2_LOCK:
+        _flush_stderr()
+        saved = -1
+        try:
+            saved = os.dup(2)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, 2)
+            finally:
+                os.close(devnull)
+        except OSError:
+            if saved >= 0:
+                with suppress(OSError):
+                    os.dup2(saved, 2)  # undo a partial redirection
+                os.close(saved)
+            saved = -1
+        try:
+            yield
+        finally:
+            if saved >= 0:
+                _flush_stderr()
+                try:
+                    os.dup2(saved, 2)
+                finally:
+                    os.close(saved)
+
+
+def _flush_stderr() -> None:
+    try:
+        sys.stderr.flush()
+    except (AttributeError, OSError, ValueError):  # no stderr, or a closed one
+        pass
+
+
 def import_mediapipe_face_mesh() -> Any:
-    """Import ``mediapipe.solutions.face_mesh`` or raise ImportError with an install hint."""
+    """Import ``mediapipe.solutions.face_mesh`` or raise ImportError with an install hint.
+
+    Sets :data:`QUIET_LOG_ENV` (where unset) first: the native loggers read it when loaded.
+    """
+    for key, value in QUIET_LOG_ENV.items():
+        os.environ.setdefault(key, value)
     try:
         import mediapipe as mp  # noqa: PLC0415
 
@@ -43,6 +122,7 @@ class MediaPipeFaceMesh:
         refine_landmarks: add the 10 iris landmarks (478 in all).
         max_num_faces: most faces to return per image.
         min_detection_confidence: MediaPipe's face detector threshold.
+        quiet: silence MediaPipe's native log lines (module docstring).
 
     The graph is loaded on first use and kept; call :meth:`close` (or use a
     ``with`` block) to free it.
@@ -50,22 +130,41 @@ class MediaPipeFaceMesh:
 
     name = "mediapipe_face_mesh"
 
-    def __init__(self, refine_landmarks: bool = True, max_num_faces: int = 5, min_detection_confidence: float = 0.5):
+    def __init__(
+        self,
+        refine_landmarks: bool = True,
+        max_num_faces: int = 5,
+        min_detection_confidence: float = 0.5,
+        quiet: bool = True,
+    ):
         self.refine_landmarks = refine_landmarks
         self.max_num_faces = max_num_faces
         self.min_detection_confidence = min_detection_confidence
+        self.quiet = quiet
         self._graph: Any = None
+        self._warm = False  # has the graph processed an image (its delegates created, their logs printed)?
 
     def _get_graph(self) -> Any:
         if self._graph is None:
-            fm = import_mediapipe_face_mesh()
-            self._graph = fm.FaceMesh(
-                static_image_mode=True,
-                refine_landmarks=self.refine_landmarks,
-                max_num_faces=self.max_num_faces,
-                min_detection_confidence=self.min_detection_confidence,
-            )
+            with native_stderr_silenced(self.quiet):
+                fm = import_mediapipe_face_mesh()
+                self._graph = fm.FaceMesh(
+                    static_image_mode=True,
+                    refine_landmarks=self.refine_landmarks,
+                    max_num_faces=self.max_num_faces,
+                    min_detection_confidence=self.min_detection_confidence,
+                )
+            self._warm = False
         return self._graph
+
+    def _process(self, img: NDArray[np.uint8]) -> Any:
+        graph = self._get_graph()
+        if self._warm:
+            return graph.process(img)
+        with native_stderr_silenced(self.quiet):  # the first run creates the TFLite delegates, which log
+            result = graph.process(img)
+        self._warm = True
+        return result
 
     def detect(self, image_rgb: NDArray[np.uint8]) -> list[FaceLandmarks]:
         """Faces in an (H, W, 3) uint8 RGB image, in MediaPipe's order."""
@@ -73,7 +172,7 @@ class MediaPipeFaceMesh:
         if img.ndim != 3 or img.shape[2] != 3:
             raise ValueError(f"image_rgb: expected (H, W, 3) uint8, got {img.shape}")
         h, w = img.shape[:2]
-        result = self._get_graph().process(img)
+        result = self._process(img)
         faces: list[FaceLandmarks] = []
         for face in result.multi_face_landmarks or []:
             raw = np.array([[p.x, p.y, p.z] for p in face.landmark], dtype=np.float64)
@@ -93,6 +192,7 @@ class MediaPipeFaceMesh:
         if self._graph is not None:
             self._graph.close()
             self._graph = None
+            self._warm = False
 
     def __enter__(self) -> "MediaPipeFaceMesh":
         return self

@@ -19,7 +19,15 @@ from facemesh.types import CameraIntrinsics
 
 from ..errors import GazeAugError
 
-__all__ = ["GazeSample", "DatasetReader", "DatasetError", "H5ImageRef", "image_size", "parse_numbers"]
+__all__ = [
+    "GazeSample",
+    "DatasetReader",
+    "DatasetError",
+    "H5ImageRef",
+    "image_size",
+    "parse_numbers",
+    "require_image",
+]
 
 
 class H5ImageRef:
@@ -45,6 +53,23 @@ class H5ImageRef:
 
 class DatasetError(GazeAugError):
     """A dataset file is missing, malformed or inconsistent (the message names the file and line)."""
+
+
+def require_image(path: Path, where: str) -> Path:
+    """``path`` if it names an existing file; a DatasetError naming ``where`` otherwise.
+
+    A name the system cannot even look up (too long, a NUL byte: a damaged label file) is
+    reported as such rather than as an OS error.
+    """
+    try:
+        found = path.is_file()
+    except (OSError, ValueError) as exc:
+        raise DatasetError(
+            f"{where}: not a usable image file name ({exc.__class__.__name__}: {str(path)[:80]}...)"
+        ) from exc
+    if not found:
+        raise DatasetError(f"{where}: image {path} not found")
+    return path
 
 
 def image_size(path: Path) -> tuple[int, int]:

@@ -28,7 +28,7 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample, parse_numbers
+from .base import DatasetError, GazeSample, parse_numbers, require_image
 
 __all__ = ["ETHXGaze", "ROTATED_CAMERAS"]
 
@@ -91,8 +91,7 @@ class ETHXGaze:
             values = parse_numbers(cols[2:], where)
             subject = path.stem
             image = self.root / "data" / self.split / subject / frame / image_name
-            if not image.is_file():
-                raise DatasetError(f"{where}: image {image} not found")
+            require_image(image, where)
             import cv2
 
             yield GazeSample(

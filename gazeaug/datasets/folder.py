@@ -36,7 +36,7 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample, image_size
+from .base import DatasetError, GazeSample, image_size, require_image
 
 __all__ = ["FolderDataset", "LABEL_FILES", "write_labels_csv"]
 
@@ -67,7 +67,7 @@ class FolderDataset:
             raise DatasetError(f"{self.root}: no {' or '.join(LABEL_FILES)} (not a folder dataset)")
         self.label_file = label_file
         self._rows: list[tuple[int, dict[str, Any]]] = []
-        text = label_file.read_text(encoding="utf-8", errors="replace")
+        text = label_file.read_text(encoding="utf-8-sig", errors="replace")  # -sig: a BOM is not part of column 1
         if label_file.suffix == ".csv":
             reader = csv.DictReader(text.splitlines())
             header = reader.fieldnames or []
@@ -149,10 +149,11 @@ class FolderDataset:
         for index, (lineno, row) in enumerate(self._rows):
             where = f"{self.label_file}, line {lineno}"
             image = self.root / str(row["image"])
-            if not image.is_file():
-                raise DatasetError(f"{where}: image {image} not found")
+            require_image(image, where)
             target = vector = None
-            if all(row.get(k) not in (None, "") for k in _TARGET):
+            # the target columns when any of them holds a value or there are no gaze columns (so an
+            # empty target cell is reported as such); the gaze direction columns otherwise
+            if any(row.get(k) not in (None, "") for k in _TARGET) or not all(k in row for k in _VECTOR):
                 target = [self._float(row, k, where) for k in _TARGET]
             else:
                 vector = [self._float(row, k, where) for k in _VECTOR]

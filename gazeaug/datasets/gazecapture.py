@@ -28,7 +28,7 @@ import numpy as np
 
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample, image_size
+from .base import DatasetError, GazeSample, image_size, require_image
 
 __all__ = ["GazeCapture", "SUPPLEMENTARY_NAME", "REQUIRED"]
 
@@ -98,8 +98,7 @@ class GazeCapture:
                 name = a["file_name"][i]
                 name = name.decode("utf-8") if isinstance(name, bytes) else str(name)
                 image = self.root / name
-                if not image.is_file():
-                    raise DatasetError(f"{where}: image {image} not found")
+                require_image(image, where)
                 fx, fy, cx, cy = (float(v) for v in a["camera_parameters"][i])
                 try:
                     camera = CameraIntrinsics(

@@ -18,7 +18,7 @@ import numpy as np
 from facemesh.camera import load_camera
 from facemesh.types import CameraIntrinsics, FaceMeshError
 
-from .base import DatasetError, GazeSample, image_size, parse_numbers
+from .base import DatasetError, GazeSample, image_size, parse_numbers, require_image
 
 __all__ = ["MPIIFaceGaze"]
 
@@ -81,8 +81,7 @@ class MPIIFaceGaze:
             ann = self.root / subject / f"{subject}.txt"
             values = parse_numbers(cols[1:27], f"{ann}, line {lineno}")
             image = self.root / subject / cols[0]
-            if not image.is_file():
-                raise DatasetError(f"{ann}, line {lineno}: image {image} not found")
+            require_image(image, f"{ann}, line {lineno}")
             import cv2
 
             landmarks = values[2:14].reshape(6, 2)

@@ -49,6 +49,10 @@ _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 _SUBJECT = re.compile(r"^s\d+$")
 
 
+#: Capture indices are below this (the dataset has 160 per subject; folders are named imgNNN).
+_MAX_CAPTURES = 100_000
+
+
 def looks_like_utmultiview(path: Path) -> bool:
     """True when ``path`` (or one of its sub-folders) has ``raw/gazedata.csv``."""
     return (path / "raw" / "gazedata.csv").is_file() or any(
@@ -214,9 +218,11 @@ class UTMultiview:
             if len(cells) < 3:
                 raise DatasetError(f"{where}: expected at least 3 columns (index, x, y), found {len(cells)}")
             values = parse_numbers(cells[:3], where)
+            if not 0 <= values[0] < _MAX_CAPTURES or values[0] != int(values[0]):
+                raise DatasetError(
+                    f"{where}: capture index must be an integer from 0 to {_MAX_CAPTURES - 1}, got {cells[0]!r}"
+                )
             index = int(values[0])
-            if index != values[0] or index < 0:
-                raise DatasetError(f"{where}: capture index must be a non-negative integer, got {cells[0]!r}")
             folder = raw / f"img{index:03d}"
             if not folder.is_dir():
                 raise DatasetError(f"{where}: capture folder {folder} not found")

@@ -1,0 +1,82 @@
+"""Helpers shared by several test modules (not fixtures: plain functions that build small inputs)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gazeaug.io_h5 import H5Writer, Rows
+
+
+def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0):
+    """A training set whose gaze pitch is readable from the images: brightness encodes it."""
+    rng = np.random.default_rng(seed)
+    gaze = rng.uniform(-0.4, 0.4, (n, 2)).astype(np.float32)
+    level = (128 + 250 * gaze[:, 0]).clip(0, 255)
+    eyes = (level[:, None, None, None] + rng.normal(0, 3, (n, 36, 60, 3))).clip(0, 255).astype(np.uint8)
+    head = rng.uniform(-0.3, 0.3, (n, 2)).astype(np.float32)
+    if nan_rows:
+        gaze[:nan_rows] = np.nan
+    eye3 = np.tile(np.eye(3, dtype=np.float32), (n, 1, 1))
+    rows = Rows(
+        {
+            "left_eye": eyes,
+            "right_eye": eyes,
+            "head_pose": head,
+            "gaze": gaze,
+            "head_pose_vector": np.zeros((n, 3)),
+            "gaze_vector": np.zeros((n, 3)),
+            "head_pose_left": head,
+            "head_pose_right": head,
+            "gaze_left": gaze,
+            "gaze_right": gaze,
+            "R_norm_left": eye3,
+            "R_norm_right": eye3,
+            "R_norm_face": eye3,
+            "subject": np.array([subjects[i % len(subjects)].encode() for i in range(n)]),
+            "source_index": np.arange(n),
+            "sampled_yaw_pitch": np.full((n, 2), np.nan),
+        }
+    )
+    w = H5Writer(
+        path,
+        {
+            "settings": {
+                "normalization": {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
+            }
+        },
+        (60, 36),
+    )
+    w.append(rows, n - 1)
+    w.finish()
+    return path
+
+
+def mutations(valid: bytes, seed: int, n: int = 24) -> list[bytes]:
+    """Damaged versions of a valid file: empty, truncated, random, odd tokens, flipped bytes (seeded)."""
+    rng = np.random.default_rng(seed)
+    out = [b"", valid[: len(valid) // 2], valid[:1], rng.bytes(64), b"\x00" * 100, b"\xff\xfe" + valid]
+    text = valid.decode("utf-8", errors="replace")
+    for token in ("1e308", "1e999", "-nan", "[]", "{}", '"x"', "null", "true", "9" * 400):
+        out.append(text.replace("0", token, 1).encode())
+    while len(out) < n:
+        b = bytearray(valid)
+        for _ in range(int(rng.integers(1, 6))):
+            b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
+        out.append(bytes(b))
+    return out
+
+
+def expect_typed_error(load, path: Path, data: bytes):
+    """Write ``data`` to ``path`` and load it: a typed error (or success), never another exception."""
+    from facemesh.types import FaceMeshError
+
+    path.write_bytes(data)
+    try:
+        load(path)
+    except FaceMeshError as exc:
+        assert str(exc).strip(), repr(exc)  # the CLIs print it on one line
+    except Exception as exc:  # pragma: no cover - the failure this test exists for
+        pytest.fail(f"{path.name} with {data[:40]!r}...: {exc.__class__.__name__}: {exc}")
