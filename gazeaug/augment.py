@@ -10,9 +10,10 @@ Steps (the paper's 4-7):
    (``D`` defaults to the source photo's distance, so the texture keeps its
    resolution); mesh and gaze move with it;
 4. each eye rendered through the normalized camera that test-time
-   normalization would build for that eye at this pose
-   (:func:`gazeaug.normalize.eye_cameras`), with the labels expressed in its
-   frame exactly as :func:`gazeaug.normalize.normalize_image` expresses them.
+   normalization builds for that eye at this pose, with its labels: both come
+   from the one kernel :func:`gazeaug.camera.normalized_views`, which
+   :func:`gazeaug.normalize.normalize_image` calls for one pose and
+   :func:`render_poses` for all the poses of a sample at once.
 
 At the source pose (``R_new = R_h``, ``t_new = t_h``) the render reproduces the
 normalization of the photo itself.
@@ -27,13 +28,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from facemesh.conventions import rotation_from_yaw_pitch, rotation_to_head_pitchyaw, vector_to_pitchyaw
+from facemesh.conventions import rotation_from_yaw_pitch
 from facemesh.face_models import FaceKeypoints, builtin_face_model, keypoints_for
 from facemesh.types import FaceMesh
 
-from .camera import normalized_cameras
+from .camera import reference_points_head
 from .errors import GazeAugError
-from .normalize import EYES, EyePatch, FaceLabels, NormalizationSettings, NormalizedSample, reference_points
+from .normalize import NormalizationSettings, NormalizedSample, samples_from_views, views_at
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 __all__ = [
@@ -91,10 +92,12 @@ def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAs
         raise GazeAugError(f"mesh without known eye landmarks: {exc}") from exc
     if max(kp.face_indices) >= len(model):
         raise GazeAugError(f"eye corner indices {kp.face_indices} do not fit a {len(model)}-point face model")
-    centres = reference_points(np.eye(3), np.zeros(3), model, kp)  # the head frame itself
-    refs = np.stack([centres["left"], centres["right"], centres["face"]])
     return FaceAsset(
-        mesh=mesh, model_vertices_mm=model, keypoints=kp, render_mesh=render_mesh(mesh), reference_points_mm=refs
+        mesh=mesh,
+        model_vertices_mm=model,
+        keypoints=kp,
+        render_mesh=render_mesh(mesh),
+        reference_points_mm=reference_points_head(model, kp),
     )
 
 
@@ -148,13 +151,6 @@ def source_placement(asset: FaceAsset) -> HeadPlacement:
     )
 
 
-def _finite3(value: ArrayLike, name: str) -> NDArray[np.float64]:
-    v = np.asarray(value, dtype=np.float64)
-    if v.shape != (3,) or not np.isfinite(v).all():
-        raise GazeAugError(f"{name}: expected finite (3,) values, got {np.asarray(value).tolist()}")
-    return v
-
-
 def render_poses(
     scene: Scene,
     asset: FaceAsset,
@@ -185,72 +181,45 @@ def render_poses(
     s = settings or NormalizationSettings()
     if not placements:
         return []
-    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
-    # the gaze label in the head frame
-    target_head = None
-    vector_head = None
     if gaze_target_mm is not None and gaze_vector is not None:
         raise GazeAugError("give a gaze target or a gaze vector, not both")
-    if gaze_target_mm is not None:
-        target_head = r_h.T @ (_finite3(gaze_target_mm, "gaze target") - t_h)
-    if gaze_vector is not None:
-        vector_head = r_h.T @ _finite3(gaze_vector, "gaze vector")
-        if np.linalg.norm(vector_head) < 1e-12:
-            raise GazeAugError("gaze: zero-length gaze vector")
+    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
     rot = np.stack([p.rotation for p in placements])  # (P, 3, 3) head -> application camera
     trans = np.stack([p.translation_mm for p in placements])  # (P, 3)
-    # reference points (left eye, right eye, face centre) at each placement
-    refs = np.einsum("pij,ej->pei", rot, asset.reference_points_mm) + trans[:, None, :]  # (P, 3, 3)
-    cams = normalized_cameras(
-        refs.reshape(-1, 3),
-        np.repeat(rot, 3, axis=0),
-        distance_mm=s.distance_mm,
-        focal_px=s.focal_px,
-        size_wh=s.patch_size_wh,
-    )  # per placement: left eye, right eye, face
-    eye_cams = [c for k, c in enumerate(cams) if k % 3 != 2]
+    # step 1: the gaze label into the head frame, then with the head to each placement
+    targets = vectors = None
+    if gaze_target_mm is not None:
+        t = np.asarray(gaze_target_mm, dtype=np.float64)
+        if t.shape != (3,) or not np.isfinite(t).all():
+            raise GazeAugError(f"gaze target: expected finite (X, Y, Z) mm, got {t.tolist()}")
+        targets = rot @ (r_h.T @ (t - t_h)) + trans
+    if gaze_vector is not None:
+        g = np.asarray(gaze_vector, dtype=np.float64)
+        if g.shape != (3,) or not np.isfinite(g).all():
+            raise GazeAugError(f"gaze vector: expected finite (3,), got {g.tolist()}")
+        vectors = rot @ (r_h.T @ g)
+    views = views_at(
+        asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets, gaze_vector=vectors
+    )
     a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
     b = trans - np.einsum("pij,j->pi", a, t_h)
-    views = [View(camera=eye_cams[k], rotation=a[k // 2], translation_mm=b[k // 2]) for k in range(len(eye_cams))]
-    out = scene.render(views)
-    # labels of all eyes and faces at once, exactly as normalization computes them
-    r_norm = np.stack([c.rotation for c in cams]).reshape(-1, 3, 3, 3)
-    head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])  # (P, 3, 2)
-    gaze = None
-    if target_head is not None or vector_head is not None:
-        if target_head is not None:
-            g = (rot @ target_head + trans)[:, None, :] - refs
-        else:
-            g = np.broadcast_to((rot @ np.asarray(vector_head))[:, None, :], refs.shape)
-        norms = np.linalg.norm(g, axis=-1, keepdims=True)
-        if (norms < 1e-9).any():
-            raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye)")
-        gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))  # (P, 3, 2)
-    samples = []
-    for i, place in enumerate(placements):
-        face = FaceLabels(camera=cams[3 * i + 2], head_pose=head[i, 2], gaze=None if gaze is None else gaze[i, 2])
-        eyes = {
-            side: EyePatch(
-                image=out.images[2 * i + j],
-                camera=eye_cams[2 * i + j],
-                head_pose=head[i, j],
-                gaze=None if gaze is None else gaze[i, j],
-                coverage=float(out.coverage[2 * i + j]),
-            )
-            for j, side in enumerate(EYES)
-        }
+    render_views = [
+        View(camera=views.cameras[i][j], rotation=a[i], translation_mm=b[i]) for i in range(len(rot)) for j in range(2)
+    ]
+    out = scene.render(render_views)
+    h, w = s.patch_size_wh[1], s.patch_size_wh[0]
+    metas = []
+    for place in placements:
         m = dict(meta or {})
         if place.yaw_pitch_rad is not None:
             m["yaw_pitch_deg"] = np.degrees(place.yaw_pitch_rad).tolist()
-        samples.append(
-            NormalizedSample(
-                left=eyes["left"],
-                right=eyes["right"],
-                settings=s,
-                head_rotation=place.rotation,
-                source=f"render:{renderer_name}",
-                meta=m,
-                face=face,
-            )
-        )
-    return samples
+        metas.append(m)
+    return samples_from_views(
+        views,
+        np.asarray(out.images).reshape(len(rot), 2, h, w, 3),
+        s,
+        rot,
+        f"render:{renderer_name}",
+        coverage=np.asarray(out.coverage).reshape(len(rot), 2),
+        metas=metas,
+    )

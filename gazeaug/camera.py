@@ -15,14 +15,21 @@ zooms it by ``d_n / ||e||``: the patch shows the reference point as a camera
 ``d_n`` away would. A direction ``v`` (gaze, head axes) is normalized by ``R``
 alone (the "modified" normalization, which does not scale the gaze).
 
-Because rendering uses this same object, an augmented patch at a pose and a
-real image normalized at that pose agree pixel for pixel and label for label.
+This module owns "the normalized camera and its labels": :func:`normalized_views`
+is the one kernel that turns a face model, its key points and P head poses into
+the normalized cameras of the three references (left eye, right eye, face
+centre) and the head-pose and gaze labels in each. Test-time normalization
+(:func:`gazeaug.normalize.normalize_image`, P = 1) and training-time rendering
+(:func:`gazeaug.augment.render_poses`, P poses) both call it, so a rendered patch
+and a real image normalized at the same pose agree label for label by
+construction.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,7 +38,24 @@ from facemesh.conventions import rotation_to_head_pitchyaw, vector_to_pitchyaw
 
 from .errors import GazeAugError
 
-__all__ = ["NormalizedCamera", "normalized_camera", "normalized_cameras", "pixel_to_ray_matrices", "pixel_grid"]
+if TYPE_CHECKING:
+    from facemesh.face_models import FaceKeypoints
+
+__all__ = [
+    "REFERENCES",
+    "NormalizedCamera",
+    "NormalizedViews",
+    "normalized_camera",
+    "normalized_cameras",
+    "normalized_views",
+    "reference_points",
+    "reference_points_head",
+    "pixel_to_ray_matrices",
+    "pixel_grid",
+]
+
+#: The three reference points of a face, in the order every kernel output lists them.
+REFERENCES = ("left", "right", "face")
 
 _EYE3 = np.eye(3)
 
@@ -251,3 +275,151 @@ def normalized_camera(
         focal_px=focal_px,
         size_wh=size_wh,
     )[0]
+
+
+def reference_points_head(model_vertices_mm: ArrayLike, keypoints: FaceKeypoints) -> NDArray[np.float64]:
+    """The face model's three reference points in its own head frame.
+
+    Args:
+        model_vertices_mm: (N, 3) float, mm, head frame: the face model the pose was solved with.
+        keypoints: which model points are the eye (and mouth) corners.
+
+    Returns:
+        (3, 3) float64, mm, head frame; rows: the left eye centre (mean of its two corners), the
+        right eye centre, the face centre (mean of the four eye corners and, when known, the
+        two mouth corners), as Zhang's normalization defines them (:data:`REFERENCES`).
+
+    Raises:
+        GazeAugError: the model has fewer points than the key points name.
+    """
+    m = np.asarray(model_vertices_mm, dtype=np.float64)
+    idx = keypoints.face_indices
+    if m.ndim != 2 or m.shape[1] != 3 or max(idx) >= len(m):
+        raise GazeAugError(
+            f"face model: expected (N, 3) points with N > {max(idx)} for these key points, got {m.shape}"
+        )
+    return np.stack(
+        [m[list(keypoints.left_eye)].mean(axis=0), m[list(keypoints.right_eye)].mean(axis=0), m[list(idx)].mean(axis=0)]
+    )
+
+
+def reference_points(
+    head_rotation: ArrayLike, head_translation_mm: ArrayLike, model_vertices_mm: ArrayLike, keypoints: FaceKeypoints
+) -> dict[str, NDArray[np.float64]]:
+    """The eye and face centres of the face model posed at one head pose, camera frame.
+
+    Args:
+        head_rotation: (3, 3) float, head frame -> camera frame.
+        head_translation_mm: (3,) float, mm, camera frame.
+        model_vertices_mm: (N, 3) float, mm, head frame.
+        keypoints: which model points are the eye and mouth corners.
+
+    Returns:
+        ``{"left": e_l, "right": e_r, "face": c}``, each (3,) float64, mm, camera frame.
+    """
+    r = np.asarray(head_rotation, dtype=np.float64)
+    posed = reference_points_head(model_vertices_mm, keypoints) @ r.T + np.asarray(
+        head_translation_mm, dtype=np.float64
+    )
+    return dict(zip(REFERENCES, posed))
+
+
+@dataclass(frozen=True)
+class NormalizedViews:
+    """The normalized cameras and labels of a face at P head poses (:func:`normalized_views`).
+
+    Attributes:
+        cameras: P tuples ``(left eye, right eye, face)`` of :class:`NormalizedCamera` (the face
+            camera has the eye patch size; only its rotation defines the face frame).
+        references_mm: (P, 3, 3) float64, mm, camera frame of each pose: the reference points
+            (rows in :data:`REFERENCES` order).
+        head_pose: (P, 3, 2) float64 radians: (pitch, yaw) of the head in each reference's
+            normalized frame (``rotation_to_head_pitchyaw(R_n R_head)``).
+        gaze: (P, 3, 2) float64 radians: (pitch, yaw) of the gaze from each reference, in its
+            normalized frame (``vector_to_pitchyaw(R_n g)``, ``g`` the unit direction from the
+            reference to the target, or the given direction); ``None`` when no gaze was given.
+    """
+
+    cameras: tuple[tuple[NormalizedCamera, NormalizedCamera, NormalizedCamera], ...]
+    references_mm: NDArray[np.float64]
+    head_pose: NDArray[np.float64]
+    gaze: NDArray[np.float64] | None
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+
+def _per_pose(value: ArrayLike | None, n: int, name: str) -> NDArray[np.float64] | None:
+    """(3,) or (P, 3) -> (P, 3) float64, checked finite."""
+    if value is None:
+        return None
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape == (3,):
+        v = np.broadcast_to(v, (n, 3))
+    if v.shape != (n, 3) or not np.isfinite(v).all():
+        raise GazeAugError(f"{name}: expected finite (3,) or ({n}, 3) values, got {np.asarray(value).tolist()}")
+    return v
+
+
+def normalized_views(
+    model_vertices_mm: ArrayLike,
+    keypoints: FaceKeypoints,
+    rotations: ArrayLike,
+    translations_mm: ArrayLike,
+    *,
+    distance_mm: float,
+    focal_px: float,
+    size_wh: tuple[int, int],
+    gaze_target_mm: ArrayLike | None = None,
+    gaze_vector: ArrayLike | None = None,
+) -> NormalizedViews:
+    """The one normalization kernel: cameras and labels of P head poses, for the three references.
+
+    Args:
+        model_vertices_mm: (N, 3) float, mm, head frame: the face model the pose was solved with.
+        keypoints: its eye (and mouth) corner indices.
+        rotations: (P, 3, 3) float, head frame -> camera frame, one per pose.
+        translations_mm: (P, 3) float, mm, camera frame: the head frame's origin at each pose.
+        distance_mm: d_n, mm.
+        focal_px: f_n, pixels.
+        size_wh: the eye patch (width, height), pixels.
+        gaze_target_mm: (3,) or (P, 3) float, mm, camera frame of each pose: the point looked at
+            (each reference's gaze is ``target - reference``).
+        gaze_vector: (3,) or (P, 3) float, camera frame: a gaze direction shared by the three
+            references (instead of a target).
+
+    Returns:
+        :class:`NormalizedViews` (see there for shapes, units and frames).
+
+    Raises:
+        GazeAugError: a target and a vector both given; non-finite or zero gaze; a reference
+            point at or behind the camera; mismatched shapes.
+    """
+    rot = np.asarray(rotations, dtype=np.float64)
+    trans = np.asarray(translations_mm, dtype=np.float64)
+    if rot.ndim != 3 or rot.shape[1:] != (3, 3) or trans.shape != (len(rot), 3):
+        raise GazeAugError(f"head poses: expected (P, 3, 3) and (P, 3), got {rot.shape} and {trans.shape}")
+    if gaze_target_mm is not None and gaze_vector is not None:
+        raise GazeAugError("give a gaze target or a gaze vector, not both")
+    n = len(rot)
+    refs = np.einsum("pij,ej->pei", rot, reference_points_head(model_vertices_mm, keypoints)) + trans[:, None, :]
+    flat = normalized_cameras(
+        refs.reshape(-1, 3), np.repeat(rot, 3, axis=0), distance_mm=distance_mm, focal_px=focal_px, size_wh=size_wh
+    )
+    r_norm = np.stack([c.rotation for c in flat]).reshape(n, 3, 3, 3)
+    head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])
+    gaze = None
+    target = _per_pose(gaze_target_mm, n, "gaze target")
+    vector = _per_pose(gaze_vector, n, "gaze vector")
+    if target is not None or vector is not None:
+        if target is not None:
+            g = target[:, None, :] - refs
+        else:
+            assert vector is not None
+            g = np.broadcast_to(vector[:, None, :], refs.shape)
+        norms = np.linalg.norm(g, axis=-1, keepdims=True)
+        if (norms < 1e-9).any():
+            raise GazeAugError("gaze: zero-length gaze vector (the target coincides with an eye or the vector is 0)")
+        gaze = vector_to_pitchyaw(np.einsum("peij,pej->pei", r_norm, g / norms))
+    cams = tuple((flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]) for i in range(n))
+    return NormalizedViews(cameras=cams, references_mm=refs, head_pose=head, gaze=gaze)

@@ -31,7 +31,7 @@ from . import __version__
 from .datasets.base import DatasetError, DatasetReader, GazeSample
 from .errors import GazeAugError
 from .io_h5 import H5Writer, Rows, rows_from_samples
-from .normalize import NormalizationSettings, face_labels, normalize_image, reference_points
+from .normalize import NormalizationSettings, normalize_image, views_at
 from .sampling import HeadPoseDistribution
 
 __all__ = ["JobSettings", "run_dataset", "process_sample", "SampleOutcome"]
@@ -107,10 +107,13 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
     from .pipeline import landmark_model_for
 
     _STATE["settings"] = settings
-    if threads == 1:  # several worker processes share the cores: no nested thread pools in OpenCV
+    if threads == 1:  # one of several worker processes sharing the cores
+        import signal
+
         import cv2
 
-        cv2.setNumThreads(1)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: no traceback per worker
+        cv2.setNumThreads(1)  # no nested thread pools in OpenCV
     _STATE["detector"] = landmark_model_for(None, None)
     if settings.kind == "augment":
         from .render import create_renderer
@@ -167,8 +170,6 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
         return skip(f"pose failed: {exc}")
     target, vector = sample.gaze_target_mm, sample.gaze_vector
     try:
-        centre = reference_points(fit.pose.rotation, fit.pose.translation_mm, fit.model.vertices_mm, fit.keypoints)
-        before = face_labels(centre["face"], fit.pose.rotation, s.normalization, target, vector)
         if s.kind == "normalize-dataset":
             samples = [
                 normalize_image(
@@ -182,7 +183,21 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
                     settings=s.normalization,
                 )
             ]
+            face = samples[0].face
+            assert face is not None and face.gaze is not None  # every dataset sample has a gaze
+            before = np.stack([face.head_pose, face.gaze])
         else:
+            source = views_at(  # the source image's own labels, for the summary's "before"
+                fit.model.vertices_mm,
+                fit.keypoints,
+                np.asarray(fit.pose.rotation)[None],
+                np.asarray(fit.pose.translation_mm)[None],
+                s.normalization,
+                gaze_target_mm=target,
+                gaze_vector=vector,
+            )
+            assert source.gaze is not None
+            before = np.stack([source.head_pose[0, 2], source.gaze[0, 2]])  # face frame
             mesh = dataset_mesh(fit, sample) if sample.mesh_path is not None else mesh_for_fit(fit)
             asset = face_asset(mesh)
             scene = _STATE["renderer"].scene(asset.render_mesh)
@@ -199,10 +214,7 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             )
     except (PoseError, GazeAugError, InputError) as exc:
         return skip(f"failed: {exc}")
-    assert before.gaze is not None
-    return SampleOutcome(
-        idx, rows_from_samples(samples, sample.subject, idx), None, np.stack([before.head_pose, before.gaze])
-    )
+    return SampleOutcome(idx, rows_from_samples(samples, sample.subject, idx), None, before)
 
 
 #: Samples per task sent to a worker process (each task reads its next image while processing the current one).
@@ -294,7 +306,14 @@ def run_dataset(
     Raises:
         DatasetError: bad dataset files; GazeAugError: bad settings or output state.
     """
+    from facemesh.outputs import output_lock
+
     out = Path(output)
+    if limit is not None and not (isinstance(limit, int) and limit >= 1):
+        raise GazeAugError(f"limit: expected an integer >= 1, got {limit!r}")
+    total = len(reader) if limit is None else min(len(reader), limit)
+    if total == 0:
+        raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
     attrs = {
         "gazeaug_version": __version__,
         "kind": settings.kind,
@@ -302,42 +321,44 @@ def run_dataset(
         "dataset_format": reader.name,
         "settings": settings.as_dict(),
     }
-    writer = H5Writer(out, attrs, settings.normalization.patch_size_wh, resume=resume, overwrite=overwrite)
-    start = writer.next_source_index
-    total = len(reader) if limit is None else min(len(reader), int(limit))
-    todo = (s for s in reader if start <= s.source_index < total)
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    with output_lock(out):  # held for the whole run: a second run is told this one is writing
+        writer = H5Writer(out, attrs, settings.normalization.patch_size_wh, resume=resume, overwrite=overwrite)
+        start = writer.next_source_index
+        todo = (s for s in reader if start <= s.source_index < total)
+        bar = None
+        if progress:
+            from tqdm import tqdm
 
-        bar = tqdm(total=total, initial=start, unit="sample", desc=settings.kind, dynamic_ncols=True)
-    t0 = time.perf_counter()
-    t_first = None
-    processed = 0
-    try:
-        for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
-            if t_first is None:
-                t_first = time.perf_counter()
-            writer.append(outcome.rows, outcome.source_index, outcome.skipped)
-            if outcome.before is not None:
-                writer.append_source(outcome.source_index, outcome.before)
-            processed += 1
+            bar = tqdm(total=total, initial=start, unit="sample", desc=settings.kind, dynamic_ncols=True)
+        t0 = time.perf_counter()
+        t_first = None
+        processed = 0
+        try:
+            for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
+                if t_first is None:
+                    t_first = time.perf_counter()
+                writer.append(outcome.rows, outcome.source_index, outcome.skipped)
+                if outcome.before is not None:
+                    writer.append_source(outcome.source_index, outcome.before)
+                processed += 1
+                if bar is not None:
+                    bar.update(1)
+                if n % flush_every == 0:
+                    writer.flush()
+        except BaseException:
+            writer.close()
             if bar is not None:
-                bar.update(1)
-            if n % flush_every == 0:
-                writer.flush()
-    except BaseException:
-        writer.close()
+                bar.close()
+            raise
         if bar is not None:
             bar.close()
-        raise
-    if bar is not None:
-        bar.close()
-    t_end = time.perf_counter()
-    seconds = t_end - t0
-    steady = (processed - 1) / (t_end - t_first) if t_first is not None and processed > 1 and t_end > t_first else None
-    writer.finish()
-    return _summarise(out, reader, settings, writer, processed, seconds, total, steady)
+        t_end = time.perf_counter()
+        seconds = t_end - t0
+        steady = (
+            (processed - 1) / (t_end - t_first) if t_first is not None and processed > 1 and t_end > t_first else None
+        )
+        writer.finish()
+        return _summarise(out, reader, settings, writer, processed, seconds, total, steady)
 
 
 def _summarise(

@@ -22,7 +22,7 @@ the right of a non-mirrored image.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from facemesh.face_models import FaceKeypoints
 from facemesh.types import CameraIntrinsics, HeadPose
 
-from .camera import NormalizedCamera, normalized_cameras
+from .camera import NormalizedCamera, NormalizedViews, normalized_views, reference_points
 from .errors import GazeAugError
 from .texture import MipPyramid, region_pyramid, sample
 
@@ -43,9 +43,9 @@ __all__ = [
     "EyePatch",
     "FaceLabels",
     "NormalizedSample",
-    "face_labels",
     "reference_points",
-    "eye_cameras",
+    "views_at",
+    "samples_from_views",
     "source_coordinates",
     "normalize_image",
     "gaze_direction",
@@ -159,58 +159,92 @@ class NormalizedSample:
         return self.left if side == "left" else self.right
 
 
-def reference_points(
-    head_rotation: ArrayLike, head_translation_mm: ArrayLike, model_vertices_mm: ArrayLike, keypoints: FaceKeypoints
-) -> dict[str, NDArray[np.float64]]:
-    """Eye and face centres of the posed face model.
-
-    Args:
-        head_rotation: (3, 3) float, head frame -> camera frame.
-        head_translation_mm: (3,) float, mm, camera frame.
-        model_vertices_mm: (N, 3) float, mm, head frame.
-        keypoints: which model points are the eye and mouth corners.
-
-    Returns:
-        ``{"left": e_l, "right": e_r, "face": c}``, each (3,) float64, mm, camera frame.
-    """
-    m = np.asarray(model_vertices_mm, dtype=np.float64)
-    idx = keypoints.face_indices
-    if m.ndim != 2 or m.shape[1] != 3 or max(idx) >= len(m):
-        raise GazeAugError(
-            f"face model: expected (N, 3) points with N > {max(idx)} for these eye corners, got {m.shape}"
-        )
-    posed = m @ np.asarray(head_rotation, dtype=np.float64).T + np.asarray(head_translation_mm, dtype=np.float64)
-    return {
-        "left": posed[list(keypoints.left_eye)].mean(axis=0),
-        "right": posed[list(keypoints.right_eye)].mean(axis=0),
-        "face": posed[list(idx)].mean(axis=0),
-    }
-
-
-def eye_cameras(
-    head_rotation: ArrayLike,
-    head_translation_mm: ArrayLike,
+def views_at(
     model_vertices_mm: ArrayLike,
     keypoints: FaceKeypoints,
+    rotations: ArrayLike,
+    translations_mm: ArrayLike,
     settings: NormalizationSettings,
-) -> dict[str, NormalizedCamera]:
-    """The normalized camera of each eye at a head pose (``{"left": ..., "right": ...}``)."""
-    refs = reference_points(head_rotation, head_translation_mm, model_vertices_mm, keypoints)
-    return _eye_cameras_at(refs, head_rotation, settings)
+    *,
+    gaze_target_mm: ArrayLike | None = None,
+    gaze_vector: ArrayLike | None = None,
+) -> NormalizedViews:
+    """:func:`gazeaug.camera.normalized_views` with the camera and patch of ``settings``.
 
-
-def _eye_cameras_at(
-    refs: dict[str, NDArray[np.float64]], head_rotation: ArrayLike, settings: NormalizationSettings
-) -> dict[str, NormalizedCamera]:
-    r = np.asarray(head_rotation, dtype=np.float64)
-    cams = normalized_cameras(
-        np.stack([refs[side] for side in EYES]),
-        np.stack([r, r]),
+    Args:
+        model_vertices_mm: (N, 3) float, mm, head frame.
+        keypoints: eye (and mouth) corner indices into the model.
+        rotations: (P, 3, 3) float, head frame -> camera frame.
+        translations_mm: (P, 3) float, mm, camera frame.
+        settings: the normalized camera (d_n, f_n) and the eye patch size.
+        gaze_target_mm: (3,) or (P, 3) float, mm, camera frame; or None.
+        gaze_vector: (3,) or (P, 3) float, camera frame; or None.
+    """
+    return normalized_views(
+        model_vertices_mm,
+        keypoints,
+        rotations,
+        translations_mm,
         distance_mm=settings.distance_mm,
         focal_px=settings.focal_px,
         size_wh=settings.patch_size_wh,
+        gaze_target_mm=gaze_target_mm,
+        gaze_vector=gaze_vector,
     )
-    return dict(zip(EYES, cams))
+
+
+def samples_from_views(
+    views: NormalizedViews,
+    patches: NDArray[np.uint8],
+    settings: NormalizationSettings,
+    head_rotations: ArrayLike,
+    source: str,
+    *,
+    coverage: ArrayLike | None = None,
+    metas: Sequence[Mapping[str, Any]] | None = None,
+) -> list[NormalizedSample]:
+    """One :class:`NormalizedSample` per pose: the kernel's cameras and labels with the patches sampled through them.
+
+    Args:
+        views: the kernel's output for P poses.
+        patches: (P, 2, H, W, 3) uint8 RGB, the (left, right) eye patches of each pose.
+        settings: the normalization settings used.
+        head_rotations: (P, 3, 3) float, head frame -> camera frame.
+        source: ``"normalize"`` or ``"render:<renderer>"``.
+        coverage: (P, 2) float, fraction of each patch that saw the face (default 1.0).
+        metas: P dicts of extras (default empty).
+    """
+    n = len(views)
+    cov = np.ones((n, 2)) if coverage is None else np.asarray(coverage, dtype=np.float64).reshape(n, 2)
+    rot = np.asarray(head_rotations, dtype=np.float64).reshape(n, 3, 3)
+    gaze = views.gaze
+    out = []
+    for i in range(n):
+        eyes = [
+            EyePatch(
+                image=np.ascontiguousarray(patches[i, j]),
+                camera=views.cameras[i][j],
+                head_pose=views.head_pose[i, j],
+                gaze=None if gaze is None else gaze[i, j],
+                coverage=float(cov[i, j]),
+            )
+            for j in range(2)
+        ]
+        face = FaceLabels(
+            camera=views.cameras[i][2], head_pose=views.head_pose[i, 2], gaze=None if gaze is None else gaze[i, 2]
+        )
+        out.append(
+            NormalizedSample(
+                left=eyes[0],
+                right=eyes[1],
+                settings=settings,
+                head_rotation=rot[i],
+                source=source,
+                meta=dict(metas[i]) if metas is not None else {},
+                face=face,
+            )
+        )
+    return out
 
 
 def source_coordinates(camera: NormalizedCamera, real: CameraIntrinsics) -> NDArray[np.float32]:
@@ -295,9 +329,16 @@ def normalize_image(
         raise GazeAugError(f"image: expected (H, W, 3) uint8 RGB, got {img.shape} {img.dtype}")
     if camera.image_size != (img.shape[1], img.shape[0]):
         raise GazeAugError(f"camera is for {camera.image_size} images, the image is {(img.shape[1], img.shape[0])}")
-    refs = reference_points(pose.rotation, pose.translation_mm, model_vertices_mm, keypoints)
-    cams = _eye_cameras_at(refs, pose.rotation, s)
-    coords = np.stack([source_coordinates(cams[side], camera) for side in EYES])
+    views = views_at(
+        model_vertices_mm,
+        keypoints,
+        np.asarray(pose.rotation)[None],
+        np.asarray(pose.translation_mm)[None],
+        s,
+        gaze_target_mm=gaze_target_mm,
+        gaze_vector=gaze_vector,
+    )
+    coords = np.stack([source_coordinates(cam, camera) for cam in views.cameras[0][:2]])
     if pyramid is not None:
         pyr = pyramid
     else:  # only the region around the eyes (the same samples, a fraction of the work)
@@ -305,54 +346,9 @@ def normalize_image(
         coords -= np.asarray(origin, dtype=np.float32)
     valid = np.ones(coords.shape[:3], dtype=bool)
     patches = sample(pyr, coords, valid, antialias=s.antialias, dtype=np.uint8)
-    eyes = {}
-    for i, side in enumerate(EYES):
-        cam = cams[side]
-        g = gaze_direction(cam.reference_mm, gaze_target_mm, gaze_vector)
-        eyes[side] = EyePatch(
-            image=np.ascontiguousarray(patches[i]),
-            camera=cam,
-            head_pose=cam.head_pose_pitchyaw(pose.rotation),
-            gaze=None if g is None else cam.gaze_pitchyaw(g),
-        )
-    return NormalizedSample(
-        left=eyes["left"],
-        right=eyes["right"],
-        settings=s,
-        head_rotation=np.array(pose.rotation),
-        source="normalize",
-        meta=dict(meta or {}),
-        face=face_labels(refs["face"], pose.rotation, s, gaze_target_mm, gaze_vector),
-    )
-
-
-def face_labels(
-    face_centre_mm: ArrayLike,
-    head_rotation: ArrayLike,
-    settings: NormalizationSettings,
-    gaze_target_mm: ArrayLike | None = None,
-    gaze_vector: ArrayLike | None = None,
-) -> FaceLabels:
-    """Head pose and gaze in the face centre's normalized frame.
-
-    Args:
-        face_centre_mm: (3,) float, mm, camera frame.
-        head_rotation: (3, 3) float, head frame -> camera frame.
-        settings: normalization settings.
-        gaze_target_mm: (3,) float, mm, camera frame, or None.
-        gaze_vector: (3,) float, camera frame, or None.
-    """
-    cam = normalized_cameras(
-        np.asarray(face_centre_mm, dtype=np.float64)[None],
-        np.asarray(head_rotation, dtype=np.float64)[None],
-        distance_mm=settings.distance_mm,
-        focal_px=settings.focal_px,
-        size_wh=settings.patch_size_wh,
+    return samples_from_views(
+        views, patches[None], s, np.asarray(pose.rotation)[None], "normalize", metas=[meta or {}]
     )[0]
-    g = gaze_direction(cam.reference_mm, gaze_target_mm, gaze_vector)
-    return FaceLabels(
-        camera=cam, head_pose=cam.head_pose_pitchyaw(head_rotation), gaze=None if g is None else cam.gaze_pitchyaw(g)
-    )
 
 
 def save_npz(path: str | Path, sample_: NormalizedSample) -> None:

@@ -173,3 +173,51 @@ def test_npz_round_trip_and_atomic_write(mpii, tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(GazeAugError, match="not a readable"):
         load_npz(tmp_path / "bad.npz")
+
+
+def test_the_normalization_kernel_against_hand_derived_values():
+    """One kernel for cameras and labels: values worked out by hand for a frontal face 500 mm away.
+
+    Model (head frame, mm): right eye corners (-35, 0, 0), (-25, 0, 0); left (25, 0, 0), (35, 0, 0);
+    mouth (-20, 60, 0), (20, 60, 0). At R = I, t = (0, 0, 500) the left eye centre is e = (30, 0, 500):
+    z = e/n, y = z x (1, 0, 0) = (0, 1, 0), x = y x z = (500, 0, -30)/n, n = sqrt(250900); the head
+    pose is (asin R[1,2], atan2(R[0,2], R[2,2])) = (0, atan2(-30, 500)); the gaze to the camera
+    centre, R_n (-e/n) = (0, 0, -1), is (0, 0). The face centre is (0, 20, 500): x = (1, 0, 0),
+    y = (0, 500, -20)/m, m = sqrt(250400); head pose (asin(-20/m), 0); gaze to the camera (0, 0).
+    """
+    from facemesh.conventions import rotation_yaw
+    from facemesh.face_models import FaceKeypoints
+    from gazeaug.camera import normalized_camera, normalized_views
+
+    model = np.array([[-35, 0, 0], [-25, 0, 0], [25, 0, 0], [35, 0, 0], [-20, 60, 0], [20, 60, 0]], float)
+    kp = FaceKeypoints(right_eye=(0, 1), left_eye=(2, 3), mouth=(4, 5))
+    opts = dict(distance_mm=600.0, focal_px=650.0, size_wh=(60, 36))
+    v = normalized_views(model, kp, np.eye(3)[None], np.array([[0.0, 0, 500]]), gaze_target_mm=np.zeros(3), **opts)
+    n, m = np.sqrt(250900.0), np.sqrt(250400.0)
+    left, right, face = v.cameras[0]
+    np.testing.assert_allclose(left.rotation, [[500 / n, 0, -30 / n], [0, 1, 0], [30 / n, 0, 500 / n]], atol=1e-15)
+    np.testing.assert_allclose(face.rotation, [[1, 0, 0], [0, 500 / m, -20 / m], [0, 20 / m, 500 / m]], atol=1e-15)
+    np.testing.assert_allclose(v.references_mm[0], [[30, 0, 500], [-30, 0, 500], [0, 20, 500]], atol=1e-12)
+    np.testing.assert_allclose(v.head_pose[0, 0], [0, np.arctan2(-30, 500)], atol=1e-15)
+    np.testing.assert_allclose(v.head_pose[0, 1], [0, np.arctan2(30, 500)], atol=1e-15)
+    np.testing.assert_allclose(v.head_pose[0, 2], [np.arcsin(-20 / m), 0], atol=1e-15)
+    np.testing.assert_allclose(v.gaze[0], np.zeros((3, 2)), atol=1e-15)
+    # a batch of poses is each pose on its own, and agrees with the camera's own label methods
+    rots = np.stack([np.eye(3), rotation_yaw(0.3)])
+    trans = np.array([[0.0, 0, 500], [10, -5, 400]])
+    target = np.array([[5.0, 40, 0], [-50, 30, 10]])
+    batch = normalized_views(model, kp, rots, trans, gaze_target_mm=target, **opts)
+    for p in range(2):
+        one = normalized_views(model, kp, rots[p : p + 1], trans[p : p + 1], gaze_target_mm=target[p], **opts)
+        np.testing.assert_array_equal(one.head_pose[0], batch.head_pose[p])
+        np.testing.assert_array_equal(one.gaze[0], batch.gaze[p])
+        for j in range(3):
+            cam = normalized_camera(batch.references_mm[p, j], rots[p], **opts)
+            np.testing.assert_allclose(cam.rotation, batch.cameras[p][j].rotation, atol=1e-15)
+            np.testing.assert_allclose(cam.head_pose_pitchyaw(rots[p]), batch.head_pose[p, j], atol=1e-14)
+            g = target[p] - batch.references_mm[p, j]
+            np.testing.assert_allclose(cam.gaze_pitchyaw(g), batch.gaze[p, j], atol=1e-14)
+    with pytest.raises(GazeAugError, match="not both"):
+        normalized_views(model, kp, rots, trans, gaze_target_mm=target, gaze_vector=[0, 0, -1], **opts)
+    with pytest.raises(GazeAugError, match="zero-length"):
+        normalized_views(model, kp, rots[:1], trans[:1], gaze_vector=[0, 0, 0], **opts)
