@@ -31,7 +31,7 @@ def _import_xatlas() -> Any:
     try:
         import xatlas  # noqa: PLC0415
     except ImportError as exc:
-        raise ImportError(f"--atlas needs xatlas: pip install xatlas ({exc})") from exc
+        raise ImportError(f"the texture atlas needs xatlas: pip install xatlas ({exc})") from exc
     return xatlas
 
 

@@ -19,7 +19,25 @@ import numpy as np
 
 from .types import FaceMeshError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "error_line", "REMEDIES"]
+
+
+#: How each command line phrases an error's ``remedy`` (:class:`facemesh.types.FaceMeshError`).
+REMEDIES = {
+    "overwrite": "pass --overwrite to replace it",
+    "resume": "pass --resume to continue it, or delete it to start over",
+    "same_settings": "resume with the same options, or delete it to start over",
+    "format": "pass --format",
+    "landmarks": "pass --landmarks with the model's own points",
+    "face_model": "pass --face-model (the 3D points your landmarks correspond to)",
+}
+
+
+def error_line(exc: BaseException) -> str:
+    """An error as one line: the library's facts, then the remedy in the command line's terms."""
+    text = " ".join(str(exc).split())
+    remedy = getattr(exc, "remedy", None)
+    return f"{text}; {REMEDIES[remedy]}" if remedy in REMEDIES else text
 
 
 class _Parser(argparse.ArgumentParser):
@@ -128,6 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # bad options (one line printed, 2), --help or --version (0)
         return exc.code if isinstance(exc.code, int) else 2
+
     def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
         print(f"facemesh: warning: {message}", file=sys.stderr)
 
@@ -137,7 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             _check_outputs(args)
             _COMMANDS[args.command](args)
     except (FaceMeshError, ImportError) as exc:
-        print(f"facemesh: error: {' '.join(str(exc).split())}", file=sys.stderr)  # one line, always
+        print(f"facemesh: error: {error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("\nfacemesh: interrupted; nothing was written (outputs are written whole or not at all)", file=sys.stderr)

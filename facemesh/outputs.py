@@ -27,6 +27,7 @@ from .types import FaceMeshError
 __all__ = [
     "OutputError",
     "OutputBusyError",
+    "OutputExistsError",
     "check_output_file",
     "check_output_folder",
     "check_picture_path",
@@ -43,6 +44,10 @@ PICTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
 class OutputError(FaceMeshError):
     """An output path cannot be written: read-only folder, folder or file in the way, unknown extension."""
+
+
+class OutputExistsError(OutputError):
+    """A complete output is already there and would be replaced (``remedy="overwrite"``)."""
 
 
 class OutputBusyError(OutputError):
@@ -206,7 +211,7 @@ def staged_folder(
 
     Args:
         path: the folder to create or replace.
-        overwrite: replace a non-empty ``path`` (otherwise refused).
+        overwrite: replace a non-empty ``path`` (otherwise :class:`OutputExistsError`).
         marker: a file that must be in a non-empty ``path`` for it to be replaced (so that
             ``overwrite`` never deletes a folder this program did not write).
 
@@ -222,7 +227,7 @@ def staged_folder(
     with output_lock(p):
         if p.is_dir() and any(p.iterdir()):
             if not overwrite:
-                raise OutputError(f"{p}: the folder exists and is not empty; pass --overwrite to replace it")
+                raise OutputExistsError(f"{p}: the folder exists and is not empty", remedy="overwrite")
             if marker is not None and not (p / marker).is_file():
                 raise OutputError(f"{p}: not a folder this command wrote (no {marker}); refusing to replace it")
         part = p.with_name(p.name + ".part")

@@ -31,7 +31,27 @@ __all__ = [
 
 
 class FaceMeshError(ValueError):
-    """Base class of the errors this package raises for bad input."""
+    """Base class of the errors this package raises for bad input.
+
+    The message states the facts (the file, expected vs got). When one of the
+    library's own parameters would resolve the error, ``remedy`` names it
+    (``"overwrite"``, ``"resume"``, ``"format"``, ``"landmarks"``, ...) and the
+    command lines phrase it with their flag; the library never speaks of flags.
+
+    Attributes:
+        remedy: the parameter that resolves the error, or None.
+    """
+
+    def __init__(self, message: str = "", *, remedy: str | None = None):
+        super().__init__(message)
+        self.remedy = remedy
+
+    def __reduce__(self) -> Any:  # keep ``remedy`` across processes (worker errors are pickled)
+        return (_rebuild_error, (type(self), str(self), self.remedy))
+
+
+def _rebuild_error(cls: type[FaceMeshError], message: str, remedy: str | None) -> FaceMeshError:
+    return cls(message, remedy=remedy)
 
 
 class InputError(FaceMeshError):

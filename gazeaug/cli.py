@@ -162,8 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
     t.add_argument("train", type=Path, help="training set (.h5 from augment or normalize-dataset)")
     t.add_argument("-o", "--output", type=Path, required=True, help="model file (.pt)")
-    t.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
-    t.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
+    tv = t.add_mutually_exclusive_group()
+    tv.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
+    tv.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
     t.add_argument("--epochs", type=_positive_int, default=10)
     t.add_argument("--batch-size", type=_positive_int, default=256)
     t.add_argument("--lr", type=_finite, default=1e-3)
@@ -644,6 +645,8 @@ def _interrupted(args: argparse.Namespace) -> str:
         part = part_path(out)
         if part.exists():
             return f"kept {part} (every sample up to the last flush); run the same command with --resume to continue"
+        if Path(out).exists():
+            return f"{out} is complete; its summary files may be missing"
     if args.command == "train" and out is not None:
         ckpt = Path(out).with_suffix(".ckpt.pt")
         if ckpt.exists():
@@ -657,6 +660,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
     import os
 
+    from facemesh.cli import error_line
     from facemesh.types import FaceMeshError
 
     parser = build_parser()
@@ -675,7 +679,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             _check_outputs(args)
             return _COMMANDS[args.command](args)
     except (FaceMeshError, ImportError, FileNotFoundError) as exc:
-        print(f"{prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)  # one line, always
+        print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"\n{prog}: interrupted; {_interrupted(args)}", file=sys.stderr)

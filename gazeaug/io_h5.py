@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from facemesh.conventions import pitchyaw_to_vector
+from facemesh.outputs import OutputExistsError
 
 from .errors import GazeAugError
 from .normalize import NormalizedSample
@@ -158,7 +159,7 @@ class H5Writer:
             raise GazeAugError(f"{self.path}: the output must end in .h5")
         self.part = part_path(self.path)
         if self.path.exists() and not overwrite:
-            raise GazeAugError(f"{self.path} exists and is complete; pass --overwrite to replace it")
+            raise OutputExistsError(f"{self.path} exists and is complete", remedy="overwrite")
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
         self.skipped: list[dict[str, Any]] = []
         self._pending: list[Rows] = []
@@ -174,7 +175,7 @@ class H5Writer:
             old = self._f.attrs.get("settings", "{}")
             if old != settings:
                 self._f.close()
-                raise GazeAugError(f"{self.part} was written with other settings; delete it or use the same options")
+                raise GazeAugError(f"{self.part} was written with other settings", remedy="same_settings")
             done = int(self._f.attrs.get("rows_done", 0))
             for k in _DTYPES:
                 self._f[k].resize(done, axis=0)
@@ -186,8 +187,7 @@ class H5Writer:
         else:
             if self.part.exists():
                 raise GazeAugError(
-                    f"{self.part}: an interrupted run left it (no run is writing it now); "
-                    "pass --resume to continue it, or delete it to start over"
+                    f"{self.part}: an interrupted run left it (no run is writing it now)", remedy="resume"
                 )
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.part, "w")

@@ -65,7 +65,7 @@ class JobSettings:
         if self.kind not in KINDS:
             raise GazeAugError(f"kind: expected one of {KINDS}, got {self.kind!r}")
         if self.kind == "augment" and not (isinstance(self.per_sample, int) and self.per_sample >= 1):
-            raise GazeAugError(f"--per-sample: expected an integer >= 1, got {self.per_sample!r}")
+            raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
         if self.renderer not in ("raycast", "filament"):
             raise GazeAugError(f"renderer: expected 'raycast' or 'filament', got {self.renderer!r}")
 

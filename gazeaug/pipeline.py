@@ -88,7 +88,7 @@ def landmark_model_for(landmarks_path: str | Path | None, face_model: str | Path
     """MediaPipe Face Mesh, or the user's own landmarks from a file with their face model."""
     if landmarks_path is not None:
         if face_model is None:
-            raise GazeAugError("--landmarks needs --face-model (the 3D points the landmarks correspond to)")
+            raise GazeAugError("landmarks given without their face model", remedy="face_model")
         from facemesh.landmarks.from_arrays import ArrayLandmarkModel, load_landmarks_file
 
         return ArrayLandmarkModel(load_landmarks_file(landmarks_path), resolve_face_model(face_model))

@@ -381,7 +381,7 @@ def train(
     if out.suffix != ".pt":
         raise GazeAugError(f"{out}: the model file must end in .pt")
     if val_path is not None and val_subjects:
-        raise GazeAugError("give --val or --val-subjects, not both")
+        raise GazeAugError("give a validation set or validation subjects, not both")
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
         return _train(train_path, out, s, val_path, val_subjects, resume, progress)
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from facemesh.camera import load_camera
+from facemesh.outputs import OutputExistsError
 from gazeaug.cli import main
 from gazeaug.datasets import DatasetError, detect_format, open_dataset
 from gazeaug.datasets.folder import FolderDataset
@@ -214,8 +215,9 @@ def test_resume_after_an_interruption(mpii_root, tmp_path):
     with pytest.raises(KeyboardInterrupt):
         run_dataset(_Interrupting(open_dataset(mpii_root), 1), out, settings, progress=False, flush_every=1)
     assert part_path(out).exists() and not out.exists()  # a killed run never looks complete
-    with pytest.raises(GazeAugError, match="--resume"):
+    with pytest.raises(GazeAugError, match="an interrupted run left it") as exc:
         run_dataset(open_dataset(mpii_root), out, settings, progress=False)
+    assert exc.value.remedy == "resume"  # the CLI says --resume
     with pytest.raises(GazeAugError, match="other settings"):
         run_dataset(
             open_dataset(mpii_root), out, JobSettings(kind="augment", per_sample=3), resume=True, progress=False
@@ -226,8 +228,9 @@ def test_resume_after_an_interruption(mpii_root, tmp_path):
     for k in a:
         if k != "attrs":
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # nothing lost, nothing duplicated
-    with pytest.raises(GazeAugError, match="--overwrite"):
+    with pytest.raises(OutputExistsError, match="exists and is complete") as exc:
         run_dataset(open_dataset(mpii_root), out, settings, progress=False)
+    assert exc.value.remedy == "overwrite"  # the CLI says --overwrite
 
 
 def test_normalize_dataset_rows_are_the_normalized_images(mpii_root, tmp_path, detector):

@@ -482,7 +482,8 @@ def test_a_6_point_model_is_not_paired_with_mediapipe_landmarks(detector):
             run()
         msg = str(info.value)
         # names the model's count, what the detector gives, and the way out
-        assert "six.npy" in msg and "6 points" in msg and "478" in msg and "--landmarks" in msg, msg
+        assert "six.npy" in msg and "6 points" in msg and "478" in msg, msg
+        assert info.value.remedy == "landmarks"  # the command lines say: pass --landmarks
 
 
 def test_the_shipped_468_point_model_still_pairs_with_478_mediapipe_landmarks(detector):

@@ -79,7 +79,8 @@ def paired_face_model(
         raise InputError(
             f"{source}: face model {model.name!r} has {n} points, but the landmark model {detector.name!r} gives {m} "
             f"landmarks (its own face model has {own.num_points}); landmark i is paired with model point i, so the "
-            f"counts must match: pass --landmarks with the model's own {n} points"
+            f"counts must match",
+            remedy="landmarks",
         )
     if m < n:
         raise InputError(f"{source}: the landmark model gives {m} points, the face model {model.name!r} has {n}")
