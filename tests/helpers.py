@@ -80,3 +80,43 @@ def expect_typed_error(load, path: Path, data: bytes):
         assert str(exc).strip(), repr(exc)  # the CLIs print it on one line
     except Exception as exc:  # pragma: no cover - the failure this test exists for
         pytest.fail(f"{path.name} with {data[:40]!r}...: {exc.__class__.__name__}: {exc}")
+
+
+def synthetic_mpii_sample(folder: Path, detector) -> Path:
+    """A stand-in for ../shared's MPIIFaceGaze p00 frame, in its exact layout, made from the built-in photo.
+
+    ``day01_0087.png`` (the 512 x 512 built-in photo as it is: MediaPipe's short-range detector
+    misses its face once it is a small part of a larger frame, or after JPEG coding),
+    ``cameraCalib.xml`` (OpenCV FileStorage ``camera_matrix``, ``cam_distortion``: f = 600 px,
+    principal point (250, 258), k1 = -0.05), ``faceModelGeneric.txt`` (3 x 6, mm: the built-in
+    face model's four eye corners, image left to right, then the two mouth corners) and
+    ``annotation.json`` (MediaPipe's landmarks at those six points, a gaze target in mm).
+    """
+    import json
+
+    import cv2
+
+    from facemesh.build import sample_image
+    from facemesh.face_models import KEYPOINTS, builtin_face_model
+    from facemesh.io import save_image_rgb
+
+    folder.mkdir(parents=True, exist_ok=True)
+    image = sample_image()
+    save_image_rgb(folder / "day01_0087.png", image)
+    fs = cv2.FileStorage(str(folder / "cameraCalib.xml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("camera_matrix", np.array([[600.0, 0, 250], [0, 600.0, 258], [0, 0, 1]]))
+    fs.write("cam_distortion", np.array([[-0.05, 0.0, 0.0, 0.0, 0.0]]))
+    fs.release()
+    kp = KEYPOINTS["mediapipe"]
+    six = [*kp.right_eye, *kp.left_eye, *(kp.mouth or ())]  # MPII's order: eye corners left to right, mouth
+    np.savetxt(folder / "faceModelGeneric.txt", builtin_face_model().vertices_mm[six].T)
+    (face,) = detector.detect(image)[:1]
+    annotation = {
+        "source": "synthetic stand-in for the MPIIFaceGaze p00 example (tests/helpers.py)",
+        "image": "day01_0087.png",
+        "image_size_wh": [512, 512],
+        "landmarks_6_px": np.round(face.points_px[six], 1).tolist(),
+        "gaze_target_3d_camera_mm": [-60.0, 20.0, -10.0],
+    }
+    (folder / "annotation.json").write_text(json.dumps(annotation, indent=1))
+    return folder

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import face_photo
 
 from facemesh import load
 from facemesh.cli import main
@@ -41,11 +42,16 @@ def test_build_sample_info_render_export(tmp_path, capsys):
     assert text.count("\nv ") == 468 and text.count("\nf ") == 898
 
 
+def _mpii_image(folder):
+    """The sample's image file (the real frame's .jpg, or the synthetic stand-in's .png)."""
+    return folder / json.loads((folder / "annotation.json").read_text())["image"]
+
+
 def test_build_with_calibration_and_face_model_file(mpii_sample, reference_model_path, tmp_path):
     glb = tmp_path / "mpii.glb"
     args = [
         "build",
-        str(mpii_sample / "day01_0087.jpg"),
+        str(_mpii_image(mpii_sample)),
         "-o",
         str(glb),
         "--camera",
@@ -63,7 +69,7 @@ def test_user_landmarks_with_ball_pivoting(mpii_sample, tmp_path, detector):
     from facemesh import builtin_face_model, load_image_rgb
     from facemesh.landmarks import select_face
 
-    img = load_image_rgb(mpii_sample / "day01_0087.jpg")
+    img = load_image_rgb(_mpii_image(mpii_sample))
     pts = select_face(detector.detect(img)).points_px[:468]
     np.save(tmp_path / "lm.npy", pts)
     np.save(tmp_path / "model.npy", builtin_face_model().vertices_mm)
@@ -71,7 +77,7 @@ def test_user_landmarks_with_ball_pivoting(mpii_sample, tmp_path, detector):
     rc = main(
         [
             "build",
-            str(mpii_sample / "day01_0087.jpg"),
+            str(_mpii_image(mpii_sample)),
             "-o",
             str(glb),
             "--landmarks",
@@ -95,8 +101,8 @@ def _write_png(path, img):
 
 
 @pytest.fixture(scope="module")
-def face_bgr(shared_data):
-    return cv2.imread(str(shared_data / "faces" / "sergey.png"), cv2.IMREAD_COLOR)
+def face_bgr(faces_dir):
+    return cv2.imread(str(face_photo(faces_dir, "sergey.png", any_face=True)), cv2.IMREAD_COLOR)
 
 
 def _bad(tmp_path, capsys, args, match):
@@ -137,8 +143,9 @@ def test_tiny_image(tmp_path, capsys):
     _bad(tmp_path, capsys, [str(p)], "tiny.png: image is 12x10 pixels")
 
 
-def test_face_index_out_of_range(tmp_path, capsys, shared_data):
-    _bad(tmp_path, capsys, [str(shared_data / "faces" / "sergey.png"), "--face-index", "3"], "face index 3")
+def test_face_index_out_of_range(tmp_path, capsys, faces_dir):
+    photo = face_photo(faces_dir, "sergey.png", any_face=True)
+    _bad(tmp_path, capsys, [str(photo), "--face-index", "3"], "face index 3")
 
 
 @pytest.mark.parametrize("kind", ["grey", "rgba", "uint16"])
@@ -156,8 +163,8 @@ def test_grey_rgba_and_16bit_images_are_handled(tmp_path, face_bgr, kind):
     assert tex.dtype == np.uint8 and tex.shape[2] == 3
 
 
-def test_several_faces_pick_by_index(tmp_path, shared_data):
-    src = str(shared_data / "faces" / "two_children.jpeg")
+def test_several_faces_pick_by_index(tmp_path, faces_dir):
+    src = str(face_photo(faces_dir, "two_children.jpeg"))
     assert main(["build", src, "-o", str(tmp_path / "a.glb")]) == 0
     assert main(["build", src, "-o", str(tmp_path / "b.glb"), "--face-index", "1"]) == 0
     a, b = load(tmp_path / "a.glb"), load(tmp_path / "b.glb")
@@ -170,8 +177,8 @@ def test_several_faces_pick_by_index(tmp_path, shared_data):
     assert area(a) > area(b)
 
 
-def test_bad_landmark_files(tmp_path, capsys, shared_data, mpii_sample):
-    img = str(mpii_sample / "day01_0087.jpg")
+def test_bad_landmark_files(tmp_path, capsys, mpii_sample):
+    img = str(_mpii_image(mpii_sample))
     model = str(mpii_sample / "faceModelGeneric.txt")
     wrong = tmp_path / "wrong.npy"
     np.save(wrong, np.zeros((6, 3)))
@@ -190,8 +197,9 @@ def test_bad_landmark_files(tmp_path, capsys, shared_data, mpii_sample):
     _bad(tmp_path, capsys, [img, "--landmarks", str(seven)], "--landmarks needs --face-model")
 
 
-def test_malformed_calibrations(tmp_path, capsys, shared_data):
-    img = str(shared_data / "faces" / "sergey.png")
+def test_malformed_calibrations(tmp_path, capsys, faces_dir):
+    img = str(face_photo(faces_dir, "sergey.png", any_face=True))
+    size = cv2.imread(img).shape[:2]
     garbage = tmp_path / "calib.xml"
     garbage.write_text("<?xml version='1.0'?><opencv_storage><camera_matrix>oops")
     _bad(tmp_path, capsys, [img, "--camera", str(garbage)], "calib.xml")
@@ -208,7 +216,7 @@ def test_malformed_calibrations(tmp_path, capsys, shared_data):
         tmp_path,
         capsys,
         [img, "--camera", str(wrong_size)],
-        "calibration is for 640x480 images, but the image is 600x600",
+        f"calibration is for 640x480 images, but the image is {size[1]}x{size[0]}",
     )
     _bad(tmp_path, capsys, [img, "--camera", str(tmp_path / "none.xml")], "none.xml: calibration file not found")
 

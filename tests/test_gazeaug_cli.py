@@ -6,17 +6,18 @@ import json
 
 import numpy as np
 import pytest
+from conftest import face_photo
 
 from gazeaug.cli import main
 from gazeaug.normalize import load_npz
 
 
 @pytest.fixture(scope="module")
-def glb(tmp_path_factory, shared_data):
+def glb(tmp_path_factory, faces_dir):
     from facemesh.cli import main as facemesh_main
 
     out = tmp_path_factory.mktemp("glb") / "face.glb"
-    assert facemesh_main(["build", str(shared_data / "faces" / "sergey.png"), "-o", str(out)]) == 0
+    assert facemesh_main(["build", str(face_photo(faces_dir, "sergey.png", any_face=True)), "-o", str(out)]) == 0
     return out
 
 
@@ -50,7 +51,7 @@ def test_normalize_the_mpii_sample(mpii_sample, tmp_path, capsys):
     assert float(z["distance_mm"]) == 500 and float(z["focal_px"]) == 960 and z["left_eye"].shape == (40, 64, 3)
 
 
-def test_render_from_glb_and_image(glb, shared_data, tmp_path):
+def test_render_from_glb_and_image(glb, faces_dir, tmp_path):
     out = tmp_path / "r.npz"
     assert main(["render", str(glb), "--original-pose", "-o", str(out)]) == 0
     z = load_npz(out)
@@ -64,7 +65,7 @@ def test_render_from_glb_and_image(glb, shared_data, tmp_path):
     a = load_npz(out)["meta"]["yaw_pitch_deg"]
     assert main(["render", str(glb), "--seed", "3", "--yaw-std", "10", "-o", str(out)]) == 0
     assert load_npz(out)["meta"]["yaw_pitch_deg"] == a  # seeded
-    assert main(["render", str(shared_data / "faces" / "astronaut.png"), "--rig", "wheelchair", "-o", str(out)]) == 0
+    assert main(["render", str(faces_dir / "astronaut.png"), "--rig", "wheelchair", "-o", str(out)]) == 0
 
 
 def test_preview_writes_the_sheet_and_the_plot(glb, tmp_path):

@@ -111,7 +111,8 @@ def test_pnp_recovers_a_known_pose_with_distortion():
     np.testing.assert_allclose(rays * pts[:, 2:3], pts, atol=1e-6)
 
 
-def test_pnp_on_the_calibrated_mpiifacegaze_sample(mpii_sample, detector):
+def test_pnp_on_the_calibrated_mpiifacegaze_sample(real_mpii_sample, detector):
+    mpii_sample = real_mpii_sample  # the real frame's own numbers
     ann = json.loads((mpii_sample / "annotation.json").read_text())
     cam = load_camera(mpii_sample / "cameraCalib.xml", image_size=tuple(ann["image_size_wh"]))
     six = load_face_model(mpii_sample / "faceModelGeneric.txt")

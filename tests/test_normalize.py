@@ -65,7 +65,7 @@ def mpii(mpii_sample):
     return cam, model, landmarks, image, target, raw
 
 
-def test_mpii_labels_equal_a_hand_computation(mpii):
+def test_mpii_labels_equal_a_hand_computation(mpii, real_mpii_sample):  # the real frame's own numbers
     cam, model, landmarks, image, target, raw = mpii
     pose = solve_head_pose(landmarks, model.vertices_mm, cam)
     sample = normalize_image(image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"], gaze_target_mm=target)
@@ -100,7 +100,7 @@ def test_without_antialiasing_on_an_undistorted_camera_it_is_warp_perspective(mp
         assert diff.max() <= 1 and diff.mean() < 0.01
 
 
-def test_antialiasing_changes_little_where_there_is_little_to_alias(mpii):
+def test_antialiasing_changes_little_where_there_is_little_to_alias(mpii, real_mpii_sample):  # minified real eyes
     cam, model, landmarks, image, target, raw = mpii
     pose = solve_head_pose(landmarks, model.vertices_mm, cam)
     a = normalize_image(image, cam, pose, model.vertices_mm, KEYPOINTS["mpii6"])
