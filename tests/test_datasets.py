@@ -283,9 +283,52 @@ def _eth_calibration(path, cam):
     fs.release()
 
 
+#: ETH-XGaze's 6 face-model rows (normalization_example.py line 192): four eye corners, then the two
+#: points its normalizeData_face averages as the "mouth" (lines 37-38).
+ETH_MODEL_ROWS = [20, 23, 26, 29, 15, 19]
+
+
+def _eth_face_model(shared_data):
+    path = shared_data / "gaze" / "calibrations" / "eth_xgaze_face_model.txt"
+    if not path.is_file():
+        pytest.skip(f"{path} not found")
+    return np.loadtxt(path)[ETH_MODEL_ROWS]
+
+
+def _eth_turn(image):
+    """ETH-XGaze's turn of cameras 3, 6 and 13, written out from normalization_example.py lines 266-270."""
+    (h, w) = image.shape[:2]
+    m = cv2.getRotationMatrix2D((w / 2, h / 2), 180, 1.0)
+    return cv2.warpAffine(image, m, (w, h))
+
+
+def _eth_face_warp(cam_matrix, hr, ht, face_model, focal_norm=960.0, distance_norm=300.0, size=448):
+    """The image warp W of ETH-XGaze's normalizeData_face, written out (normalization_example.py lines 27-64)."""
+    h_r = cv2.Rodrigues(np.asarray(hr, dtype=np.float64))[0]
+    fc = h_r @ face_model.T + np.asarray(ht, dtype=np.float64).reshape(3, 1)
+    two_eye_center = fc[:, 0:4].mean(axis=1)
+    mouth_center = fc[:, 4:6].mean(axis=1)
+    face_center = (two_eye_center + mouth_center) / 2.0
+    distance = np.linalg.norm(face_center)
+    cam_norm = np.array([[focal_norm, 0, size / 2], [0, focal_norm, size / 2], [0, 0, 1.0]])
+    s = np.diag([1.0, 1.0, distance_norm / distance])
+    forward = face_center / distance
+    down = np.cross(forward, h_r[:, 0])
+    down /= np.linalg.norm(down)
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right)
+    r = np.c_[right, down, forward].T
+    return cam_norm @ s @ r @ np.linalg.inv(cam_matrix)
+
+
 @pytest.fixture(scope="module")
-def eth_root(tmp_path_factory, mpii_sample):
-    """ETH-XGaze layout with the real p00 frame as camera 00 and, turned upside down, as camera 03."""
+def eth_root(tmp_path_factory, mpii_sample, shared_data):
+    """ETH-XGaze layout with the real p00 frame as camera 00 and as camera 03, stored upside down.
+
+    Camera 03's file is what ETH-XGaze's own turn (``_eth_turn``) takes back to the labelled
+    picture: ETH's turn is its own inverse up to its one-pixel black border. The head pose is
+    ETH's 6-point model fitted (PnP) to p00's six landmarks, so ETH's face patch shows the face.
+    """
     ann, cam = _p00(mpii_sample)
     root = tmp_path_factory.mktemp("eth")
     (root / "calibration" / "cam_calibration").mkdir(parents=True)
@@ -293,12 +336,15 @@ def eth_root(tmp_path_factory, mpii_sample):
     frame.mkdir(parents=True)
     (root / "data" / "annotation_train").mkdir(parents=True)
     img = cv2.imread(str(mpii_sample / ann["image"]))
+    lm = np.array(ann["landmarks_6_px"], dtype=np.float64)
+    fm = _eth_face_model(shared_data)
+    _, rvec, tvec = cv2.solvePnP(fm.reshape(-1, 1, 3), lm.reshape(-1, 1, 2), cam.matrix, cam.distortion)
     lines = []
-    for cam_id, image in ((0, img), (3, img[::-1, ::-1])):
+    for cam_id, image in ((0, img), (3, _eth_turn(img))):
         _eth_calibration(root / "calibration" / "cam_calibration" / f"cam{cam_id:02d}.xml", cam)
         cv2.imwrite(str(frame / f"cam{cam_id:02d}.JPG"), image)
         cols = ["frame0000", f"cam{cam_id:02d}.JPG", "100", "200", *map(str, ann["gaze_target_3d_camera_mm"])]
-        cols += ["0.1", "0.2", "0.05", "10", "20", "450"] + ["300.5"] * 136
+        cols += [f"{v:.8f}" for v in (*rvec.ravel(), *tvec.ravel())] + ["300.5"] * 136
         lines.append(",".join(cols))
     (root / "data" / "annotation_train" / "subject0000.csv").write_text("\n".join(lines) + "\n")
     return root
@@ -310,11 +356,47 @@ def test_ethxgaze_reader_and_upside_down_cameras(eth_root, shared_data):
     a, b = list(ds)
     assert a.subject == "subject0000" and not a.rotate_180 and b.rotate_180
     assert a.landmarks_px.shape == (68, 2) and a.camera.image_size == (1280, 720)
-    # camera 03 is stored turned by 180 deg (JPEG re-encoding of the turned picture differs by a few levels)
-    assert np.abs(b.load_image().astype(float) - a.load_image()).mean() < 0.5
+    # camera 03 turned exactly: pixel (x, y) is ETH's turned pixel (x + 1, y + 1), i.e. p00's
+    # (JPEG re-encoding of the turned picture differs by a few levels)
+    assert np.abs(b.load_image()[:-1, :-1].astype(float) - a.load_image()[1:, 1:]).mean() < 0.5
     # the real ETH-XGaze calibration files load as they are
     real = load_camera(shared_data / "gaze" / "calibrations" / "eth_xgaze_cams_original" / "cam03.xml")
     assert real.image_size == (6000, 4000) and real.has_distortion
+
+
+def test_ethxgaze_turned_cameras_give_eths_own_face_patch(eth_root, shared_data):
+    """Cameras 3, 6, 13: the sample's image and camera reproduce ETH-XGaze's normalization exactly.
+
+    ETH's code turns the stored image with ``warpAffine(getRotationMatrix2D(centre, 180))``
+    (normalization_example.py lines 266-270): the exact flip moved one pixel right and down,
+    used with the calibration's camera matrix unchanged (line 290). The reader turns the image
+    exactly and moves the principal point (and the landmarks) by -1 px instead.
+    """
+    import csv
+
+    fm = _eth_face_model(shared_data)
+    a, b = list(open_dataset(eth_root))
+    rows = list(csv.reader((eth_root / "data" / "annotation_train" / "subject0000.csv").open()))
+    hr, ht = np.array(rows[1][7:10], float), np.array(rows[1][10:13], float)
+    fs = cv2.FileStorage(str(eth_root / "calibration" / "cam_calibration" / "cam03.xml"), cv2.FILE_STORAGE_READ)
+    k = fs.getNode("Camera_Matrix").mat()  # ETH lines 183-184
+    fs.release()
+    raw = cv2.imread(str(eth_root / "data" / "train" / "subject0000" / "frame0000" / "cam03.JPG"))
+    w_eth = _eth_face_warp(k, hr, ht, fm)
+    expected = cv2.warpPerspective(_eth_turn(raw), w_eth, (448, 448)).astype(float)
+    assert expected.std() > 20  # the face, not a border
+    image = np.ascontiguousarray(b.load_image()[:, :, ::-1])  # RGB -> BGR, as cv2.imread
+    got = cv2.warpPerspective(image, _eth_face_warp(b.camera.matrix, hr, ht, fm), (448, 448))
+    diff = np.abs(got - expected)
+    assert diff.mean() < 0.02 and diff.max() <= 2, (diff.mean(), diff.max())
+    # an exact flip with the calibration's matrix unchanged is one pixel off ETH's patch
+    off = np.abs(cv2.warpPerspective(image, w_eth, (448, 448)) - expected).mean()
+    assert off > 0.2 and off > 1000 * diff.mean(), (off, diff.mean())
+    # ETH's landmark pixels refer to ETH's turned image: one pixel right and down of ours
+    np.testing.assert_allclose(b.landmarks_px, np.full((68, 2), 300.5 - 1.0))
+    np.testing.assert_allclose(a.landmarks_px, np.full((68, 2), 300.5))
+    np.testing.assert_allclose(b.camera.matrix[:2, 2], k[:2, 2] - 1.0)
+    np.testing.assert_allclose(b.camera.matrix[[0, 1], [0, 1]], k[[0, 1], [0, 1]])
 
 
 def test_ethxgaze_runs_and_bad_annotations(eth_root, tmp_path):
@@ -333,8 +415,51 @@ def test_ethxgaze_runs_and_bad_annotations(eth_root, tmp_path):
         open_dataset(root)
 
 
+def _eth_test_row():
+    """A row of ETH-XGaze's test annotations: frame, image, head rotation (3), translation (3), 68 landmarks.
+
+    The layout X-Shi/Data-Normalization-Gaze-Estimation's nor_eye_face_test.py reads
+    (lines 256-297): no gaze columns at all, 2 + 3 + 3 + 136 = 144 columns.
+    """
+    return ",".join(["frame0000", "cam00.JPG", "0.1", "0.2", "0.05", "10", "20", "450"] + ["300.5"] * 136)
+
+
+def test_ethxgaze_test_split_is_refused_with_the_reason(eth_root, tmp_path):
+    """ETH-XGaze keeps its test labels for its leaderboard (README, FAQ; data_loader.py line 66)."""
+    from gazeaug.datasets.ethxgaze import ETHXGaze
+
+    root = tmp_path / "both"
+    shutil.copytree(eth_root, root)
+    (root / "data" / "annotation_test").mkdir()
+    (root / "data" / "annotation_test" / "subject0001.csv").write_text(_eth_test_row() + "\n")
+    with pytest.raises(DatasetError, match=r"test split.*no gaze labels.*leaderboard"):
+        ETHXGaze(root, split="test")
+    with pytest.raises(DatasetError, match=r"split: expected 'train', got 'val'"):
+        ETHXGaze(root, split="val")
+    assert len(open_dataset(root)) == 2  # the training split reads as before
+    # a download of the test split alone: found as ETH-XGaze, refused with the reason
+    only = tmp_path / "only_test"
+    (only / "data" / "annotation_test").mkdir(parents=True)
+    (only / "data" / "annotation_test" / "subject0001.csv").write_text(_eth_test_row() + "\n")
+    assert detect_format(only) == "ethxgaze"
+    with pytest.raises(DatasetError, match=r"only the test split.*no gaze labels") as err:
+        open_dataset(only)
+    assert "annotation_test" in str(err.value)
+    # a test-split file among the training annotations: its layout is named
+    (root / "data" / "annotation_train" / "subject0001.csv").write_text(_eth_test_row() + "\n")
+    with pytest.raises(DatasetError, match=r"subject0001.csv, line 1: expected 149 columns, found 144 .*test split"):
+        open_dataset(root)
+
+
 @pytest.fixture(scope="module")
 def gazecapture_root(tmp_path_factory, mpii_sample):
+    """GazeCapture + FAZE's supplementary HDF5 in the released shape: 4 distortion values a row.
+
+    fastgaze's reader (gazeirislandmarks/datasets/gazecapture.py lines 67 and 489) appends one
+    zero to each ``distortion_parameters`` row and passes the result to
+    ``cv2.initUndistortRectifyMap`` (line 495), which takes only 4, 5, 8, 12 or 14 values: the
+    released rows hold k1, k2, p1, p2.
+    """
     import h5py
 
     ann, cam = _p00(mpii_sample)
@@ -346,7 +471,7 @@ def gazecapture_root(tmp_path_factory, mpii_sample):
         g["file_name"] = np.array([b"00002/frames/00000.jpg"])
         k = cam.matrix
         g["camera_parameters"] = np.array([[k[0, 0], k[1, 1], k[0, 2], k[1, 2]]])
-        g["distortion_parameters"] = cam.distortion.reshape(1, 5)
+        g["distortion_parameters"] = cam.distortion[:4].reshape(1, 4)
         g["head_pose"] = np.array([[0.1, 0.2, 0.0, 10.0, 20.0, 450.0]])
         g["3d_gaze_target"] = np.array([ann["gaze_target_3d_camera_mm"]])
     return root
@@ -359,6 +484,33 @@ def test_gazecapture_reader_and_run(gazecapture_root, tmp_path):
     assert s.subject == "00002" and s.camera.image_size == (1280, 720) and s.camera.has_distortion
     summary = run_dataset(ds, tmp_path / "g.h5", JobSettings(kind="augment", per_sample=2), progress=False)
     assert summary["rows"] == 2
+
+
+def test_gazecapture_distortion_as_released_and_as_five_values(gazecapture_root, tmp_path):
+    import h5py
+
+    with h5py.File(gazecapture_root / "GazeCapture_supplementary.h5", "r") as f:
+        row = f["00002/distortion_parameters"][0]
+    assert row.shape == (4,)
+    s = next(iter(open_dataset(gazecapture_root)))
+    # what fastgaze hands OpenCV (gazecapture.py line 67): the row with k3 = 0 appended
+    np.testing.assert_array_equal(s.camera.distortion, np.append(row, 0))
+    k = s.camera.matrix
+    cv2.initUndistortRectifyMap(k, np.asarray(s.camera.distortion), None, k, (1280, 720), cv2.CV_32FC1)
+    root = tmp_path / "gc"
+    shutil.copytree(gazecapture_root, root)
+    five = np.array([[-0.1, 0.2, 0.001, -0.002, 0.3]])
+    with h5py.File(root / "GazeCapture_supplementary.h5", "a") as f:
+        del f["00002/distortion_parameters"]
+        f["00002/distortion_parameters"] = five
+    np.testing.assert_array_equal(next(iter(open_dataset(root))).camera.distortion, five[0])
+    with h5py.File(root / "GazeCapture_supplementary.h5", "a") as f:
+        del f["00002/distortion_parameters"]
+        f["00002/distortion_parameters"] = np.zeros((1, 6))
+    with pytest.raises(
+        DatasetError, match=r"group '00002': distortion_parameters has shape \(1, 6\), expected \(1, 4\)"
+    ):
+        open_dataset(root)
 
 
 def test_gazecapture_bad_supplementary(gazecapture_root, tmp_path):
@@ -376,32 +528,60 @@ def test_gazecapture_bad_supplementary(gazecapture_root, tmp_path):
         open_dataset(root)
 
 
-@pytest.fixture(scope="module")
-def eth_normalized_root(tmp_path_factory, shared_data):
-    """ETH-XGaze normalized layout: a 224 face patch made from a real photo (stored BGR), with its gaze."""
+def _eth_face_gaze(g):
+    """ETH-XGaze's (pitch, yaw) of a gaze vector (target - face centre), normalization_example.py lines 313-315."""
+    g = np.asarray(g, dtype=np.float64) / np.linalg.norm(g)
+    return np.array([np.arcsin(-g[1]), np.arctan2(-g[0], -g[2])])
+
+
+def _eth_normalized_file(path, patches_bgr, face_gaze):
+    """A subjectXXXX.h5 with the datasets, shapes and types ETH's code writes (normalization_example.py 294-331)."""
     import h5py
 
+    n = len(patches_bgr)
+    with h5py.File(path, "w") as f:
+        f["frame_index"] = np.arange(n).reshape(n, 1)
+        f["cam_index"] = np.arange(n).reshape(n, 1)
+        f["facial_landmarks"] = np.zeros((n, 68, 2))
+        f["face_patch"] = np.asarray(patches_bgr, dtype=np.uint8)
+        f["face_mat_norm"] = np.tile(np.eye(3), (n, 1, 1))
+        f["face_gaze"] = np.asarray(face_gaze, dtype=np.float64)
+        f["face_head_pose"] = np.zeros((n, 2))
+
+
+@pytest.fixture(scope="module")
+def eth_normalized_root(tmp_path_factory, shared_data):
+    """ETH-XGaze's normalized 224 release as ETH's code makes it, from a real photo.
+
+    A 448 patch by normalizeData_face's warp (focal 960, 300 mm, normalization_example.py lines
+    27-66; our head pose and face centre stand in for ETH's face model), resized to 224 with
+    ``cv2.INTER_AREA`` (line 292), stored BGR.
+    """
     from facemesh.camera import camera_for_image
-    from facemesh.io import load_image_rgb
     from facemesh.landmarks import MediaPipeFaceMesh
-    from gazeaug.camera import normalized_camera
     from gazeaug.normalize import reference_points
     from gazeaug.pipeline import fit_face
 
-    img = load_image_rgb(shared_data / "faces" / "sergey.png")
-    h, w = img.shape[:2]
+    bgr = cv2.imread(str(shared_data / "faces" / "sergey.png"))
+    h, w = bgr.shape[:2]
     cam = camera_for_image(None, w, h, warn=False)
     with MediaPipeFaceMesh() as det:
-        fit = fit_face(img, cam, det)
+        fit = fit_face(np.ascontiguousarray(bgr[:, :, ::-1]), cam, det)
     centre = reference_points(fit.pose.rotation, fit.pose.translation_mm, fit.model.vertices_mm, fit.keypoints)["face"]
-    ncam = normalized_camera(centre, fit.pose.rotation, distance_mm=300, focal_px=480, size_wh=(224, 224))
-    patch = cv2.warpPerspective(img, ncam.warp_matrix(cam.matrix), (224, 224))
-    gaze = np.array([[-0.1, 0.2], [0.05, -0.3]])
+    h_r = np.asarray(fit.pose.rotation)
+    distance = np.linalg.norm(centre)
+    forward = centre / distance
+    down = np.cross(forward, h_r[:, 0])
+    down /= np.linalg.norm(down)
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right)
+    r = np.c_[right, down, forward].T
+    cam_norm = np.array([[960.0, 0, 224.0], [0, 960.0, 224.0], [0, 0, 1.0]])
+    warp = cam_norm @ np.diag([1.0, 1.0, 300.0 / distance]) @ r @ np.linalg.inv(cam.matrix)
+    patch448 = cv2.warpPerspective(bgr, warp, (448, 448))
+    patch224 = cv2.resize(patch448, (224, 224), interpolation=cv2.INTER_AREA)
     root = tmp_path_factory.mktemp("ethn")
-    with h5py.File(root / "subject0003.h5", "w") as f:
-        f["face_patch"] = np.stack([patch[..., ::-1], patch[..., ::-1]])
-        f["face_gaze"] = gaze
-        f["cam_index"] = np.array([[0], [1]])
+    _eth_normalized_file(root / "subject0003.h5", [patch224, patch224], [[-0.1, 0.2], [0.05, -0.3]])
     return root
 
 
@@ -424,6 +604,52 @@ def test_ethxgaze_normalized_reader_and_run(eth_normalized_root, tmp_path):
     d = read_h5(tmp_path / "n.h5")
     # the face-frame gaze of the training rows is the file's gaze (the virtual camera is the normalized one)
     np.testing.assert_allclose(d["gaze"], [[-0.1, 0.2], [0.05, -0.3]], atol=0.02)
+
+
+def test_ethxgaze_normalized_gaze_is_eths_pitch_yaw(tmp_path):
+    """face_gaze holds ETH's (pitch, yaw) of target - face centre (lines 313-315): the reader gives that vector back."""
+    gazes = np.array([[0.3, -0.2, -0.93], [-0.5, 0.4, -0.77], [0.05, 0.6, -0.8]])
+    _eth_normalized_file(tmp_path / "subject0000.h5", np.zeros((3, 448, 448, 3)), [_eth_face_gaze(g) for g in gazes])
+    got = np.array([s.gaze_vector for s in open_dataset(tmp_path)])
+    np.testing.assert_allclose(got, gazes / np.linalg.norm(gazes, axis=1, keepdims=True), atol=1e-12)
+
+
+@pytest.mark.parametrize("size", [448, 224, 112])
+def test_ethxgaze_normalized_camera_follows_the_inter_area_resize(tmp_path, size):
+    """The virtual camera of a patch resized from ETH's 448 one: where cv2.resize puts the 448 principal point.
+
+    ETH's 448 patch has focal 960 and principal point (224, 224) (normalization_example.py lines
+    28-30, 45-49); the 224 release is that patch resized with INTER_AREA (line 292). A smooth
+    blob centred on the 448 principal point is measured after the resize (its centroid), so
+    the expected value comes from OpenCV, not from a formula.
+    """
+    yy, xx = np.mgrid[0:448, 0:448].astype(np.float64)
+    blob = np.exp(-((xx - 224.0) ** 2 + (yy - 224.0) ** 2) / (2 * 6.0**2)).astype(np.float32)
+    small = cv2.resize(blob, (size, size), interpolation=cv2.INTER_AREA) if size != 448 else blob
+    ys, xs = np.mgrid[0:size, 0:size]
+    centroid = np.array([(xs * small).sum(), (ys * small).sum()]) / small.sum()
+    _eth_normalized_file(tmp_path / "subject0000.h5", np.zeros((1, size, size, 3)), [[0.0, 0.0]])
+    s = next(iter(open_dataset(tmp_path)))
+    np.testing.assert_allclose(s.camera.matrix[:2, 2], centroid, atol=1e-6)
+    np.testing.assert_allclose(s.camera.matrix[[0, 1], [0, 1]], 960.0 * size / 448)
+    if size == 224:
+        np.testing.assert_allclose(centroid, [111.75, 111.75], atol=1e-6)
+    # a release rendered at its own size (principal point at the centre) can be read too
+    from gazeaug.datasets.ethxgaze_normalized import ETHXGazeNormalized
+
+    t = next(iter(ETHXGazeNormalized(tmp_path, resized_from_448=False)))
+    np.testing.assert_allclose(t.camera.matrix[:2, 2], [size / 2, size / 2])
+
+
+def test_ethxgaze_normalized_refuses_another_normalization(tmp_path):
+    """X-Shi/Data-Normalization-Gaze-Estimation's files (nor_eye_face.py lines 309, 329-333) use another camera."""
+    import h5py
+
+    _eth_normalized_file(tmp_path / "subject0000.h5", np.zeros((1, 224, 224, 3)), [[0.0, 0.0]])
+    with h5py.File(tmp_path / "subject0000.h5", "a") as f:
+        f["left_eye_patch"] = np.zeros((1, 224, 224, 3), np.uint8)
+    with pytest.raises(DatasetError, match=r"subject0000.h5: has left_eye_patch.*nor_eye_face.py.*not supported"):
+        open_dataset(tmp_path, format="ethxgaze_normalized")
 
 
 def _read_all(root):

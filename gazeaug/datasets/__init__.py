@@ -5,11 +5,12 @@
 ``mpiifacegaze``
     the raw MPIIFaceGaze release (``pXX/pXX.txt`` + ``pXX/Calibration/Camera.mat``).
 ``ethxgaze``
-    the raw ETH-XGaze release (per-subject annotation CSVs + per-camera XML calibrations).
+    the raw ETH-XGaze release (per-subject annotation CSVs + per-camera XML calibrations); its
+    training split (the test split has no gaze labels and is refused with that reason).
 ``ethxgaze_normalized``
     ETH-XGaze's normalized ``subjectXXXX.h5`` release (face patches as images of the normalized camera).
 ``gazecapture``
-    GazeCapture with its supplementary HDF5 (intrinsics, head pose, 3D gaze targets).
+    GazeCapture with FAZE's supplementary HDF5 (intrinsics, distortion, head pose, 3D gaze targets).
 ``utmultiview``
     UT Multiview's raw part (8 cameras per capture, a reconstructed face mesh per capture;
     :mod:`gazeaug.datasets.utmultiview`).
@@ -49,7 +50,7 @@ def detect_format(path: str | Path) -> str:
     if (p / SUPPLEMENTARY_NAME).is_file():
         return "gazecapture"
     if (p / "data" / "annotation_train").is_dir() or (p / "data" / "annotation_test").is_dir():
-        return "ethxgaze"
+        return "ethxgaze"  # a test split alone is ETH-XGaze too: its reader says why it is refused
     if looks_like_ethxgaze_normalized(p):
         return "ethxgaze_normalized"
     if looks_like_utmultiview(p):

@@ -1,10 +1,21 @@
 """ETH-XGaze's normalized release (``subjectXXXX.h5``), for training without augmentation.
 
-Each file holds, per sample: ``face_patch`` (N, S, S, 3) uint8 **BGR**, the face
-normalized by ETH-XGaze's code (focal 960 px for S = 448, scaled with S;
-distance 300 mm; principal point (S/2, S/2)); ``face_gaze`` (N, 2) (pitch, yaw)
-radians in that normalized frame (MPIIGaze convention); ``face_head_pose``,
-``face_mat_norm``, ``frame_index``, ``cam_index`` and ``facial_landmarks``.
+Each file holds, per sample (xucong-zhang/ETH-XGaze ``normalization_example.py``
+writes them): ``face_patch`` (N, S, S, 3) uint8 **BGR**; ``face_gaze`` (N, 2)
+(pitch, yaw) radians of the gaze vector ``g`` = gaze target - face centre in
+the normalized camera's OpenCV frame, ``pitch = asin(-g_y)``, ``yaw =
+atan2(-g_x, -g_z)`` for unit ``g`` (the MPIIGaze convention, so ``g =
+pitchyaw_to_vector(face_gaze)``); ``face_head_pose``, ``face_mat_norm``,
+``frame_index``, ``cam_index`` and ``facial_landmarks``.
+
+The normalized camera: ETH-XGaze's code makes 448 x 448 patches with focal
+960 px at 300 mm and principal point (224, 224) (pixel centres at integers).
+Other sizes are that patch resized with ``cv2.resize(..., INTER_AREA)`` (the
+code's own recipe for the 224 release), which maps 448-pixel position ``u``
+to ``(u + 0.5) S / 448 - 0.5``: focal ``960 S / 448`` and principal point
+``(224.5 S / 448 - 0.5)`` on both axes, 111.75 (not 112) for S = 224
+(:func:`normalized_intrinsics`). ``resized_from_448=False`` reads patches
+rendered at their own size (principal point S / 2) instead.
 
 A face patch is itself an image taken by a (virtual) pinhole camera, the
 normalized one, in which the gaze vector is ``pitchyaw_to_vector(face_gaze)``.
@@ -12,7 +23,7 @@ The reader yields each patch as such an image with that camera and gaze
 direction, so the rest of the pipeline (MediaPipe, PnP, our eye
 normalization at d_n, f_n) runs on it unchanged and the training set has the
 same eye patches and labels as every other dataset. The test split has no
-gaze labels and is refused.
+gaze labels (they are kept for ETH-XGaze's leaderboard) and is refused.
 """
 
 from __future__ import annotations
@@ -27,10 +38,36 @@ from facemesh.types import CameraIntrinsics
 
 from .base import DatasetError, GazeSample, H5ImageRef
 
-__all__ = ["ETHXGazeNormalized", "looks_like_ethxgaze_normalized", "FOCAL_AT_448"]
+__all__ = [
+    "ETHXGazeNormalized",
+    "looks_like_ethxgaze_normalized",
+    "normalized_intrinsics",
+    "FOCAL_AT_448",
+    "ETH_PATCH_SIZE",
+]
 
 #: The normalized camera's focal length for 448-pixel patches (ETH-XGaze's ``focal_norm``).
 FOCAL_AT_448 = 960.0
+#: The size ETH-XGaze's code normalizes faces at (its ``roiSize``); other sizes are resized from it.
+ETH_PATCH_SIZE = 448
+
+
+def normalized_intrinsics(size: int, resized_from_448: bool = True) -> tuple[float, float]:
+    """(focal, principal point) in pixels of an S x S ETH-XGaze face patch's virtual camera.
+
+    Args:
+        size: S, the patch's side in pixels.
+        resized_from_448: the patch is ETH-XGaze's 448 patch (focal 960, principal point
+            224) resized with ``cv2.INTER_AREA``, which maps position ``u`` to
+            ``(u + 0.5) S / 448 - 0.5`` (pixel centres at integers); ``False``: rendered at
+            size S directly, principal point ``S / 2``.
+
+    Returns:
+        ``(f, c)``: focal ``960 S / 448``; ``c`` on both axes.
+    """
+    scale = size / ETH_PATCH_SIZE
+    centre = (ETH_PATCH_SIZE / 2 + 0.5) * scale - 0.5 if resized_from_448 else size / 2.0
+    return FOCAL_AT_448 * scale, centre
 
 
 def looks_like_ethxgaze_normalized(path: Path) -> bool:
@@ -52,14 +89,17 @@ class ETHXGazeNormalized:
 
     Args:
         root: the folder holding the ``subject*.h5`` files (e.g. ``xgaze_224/train``).
+        resized_from_448: patches of another size than 448 are ETH's 448 patches resized with
+            ``cv2.INTER_AREA`` (default, the released 224 files); ``False``: rendered at their size.
     """
 
     name = "ethxgaze_normalized"
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, resized_from_448: bool = True):
         import h5py
 
         self.root = Path(root)
+        self.resized_from_448 = bool(resized_from_448)
         files = sorted(self.root.glob("subject*.h5"))
         if not files:
             raise DatasetError(f"{self.root}: no subject*.h5 files (not ETH-XGaze's normalized release)")
@@ -70,11 +110,22 @@ class ETHXGazeNormalized:
             except OSError as exc:
                 raise DatasetError(f"{p}: not a readable HDF5 file ({exc})") from exc
             with f:
+                if "left_eye_patch" in f or "right_eye_patch" in f:
+                    raise DatasetError(
+                        f"{p}: has left_eye_patch / right_eye_patch, so it was made by "
+                        "X-Shi/Data-Normalization-Gaze-Estimation's nor_eye_face.py (focal 960 px at 600 mm "
+                        "whatever the patch size), not ETH-XGaze's release (focal 960 px at 448 px, 300 mm): "
+                        "its patches' camera is not the one this reader gives; not supported"
+                    )
                 for k in ("face_patch", "face_gaze"):
                     if k not in f:
-                        raise DatasetError(f"{p}: missing dataset {k!r} (the test split has no gaze labels)")
-                n, s = f["face_patch"].shape[0], f["face_patch"].shape[1]
-                if f["face_patch"].shape[1:] != (s, s, 3) or f["face_gaze"].shape != (n, 2):
+                        raise DatasetError(
+                            f"{p}: missing dataset {k!r} (the test split has no gaze labels: ETH-XGaze keeps "
+                            "them for its leaderboard)"
+                        )
+                shape = tuple(f["face_patch"].shape)
+                n, s = (shape[0], shape[1]) if len(shape) == 4 else (0, 0)
+                if len(shape) != 4 or shape[1:] != (s, s, 3) or s < 1 or f["face_gaze"].shape != (n, 2):
                     raise DatasetError(
                         f"{p}: face_patch {f['face_patch'].shape} / face_gaze {f['face_gaze'].shape}: "
                         "expected (N, S, S, 3) and (N, 2)"
@@ -89,9 +140,9 @@ class ETHXGazeNormalized:
 
         index = 0
         for p, n, size in self._files:
-            f_px = FOCAL_AT_448 * size / 448.0
+            f_px, c_px = normalized_intrinsics(size, self.resized_from_448)
             camera = CameraIntrinsics(
-                matrix=np.array([[f_px, 0.0, size / 2.0], [0.0, f_px, size / 2.0], [0.0, 0.0, 1.0]]),
+                matrix=np.array([[f_px, 0.0, c_px], [0.0, f_px, c_px], [0.0, 0.0, 1.0]]),
                 distortion=np.zeros(5),
                 image_size=(size, size),
                 source=f"{p} (ETH-XGaze normalized camera)",

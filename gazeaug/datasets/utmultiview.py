@@ -6,22 +6,33 @@ Layout read (per subject ``sNN``)::
                                               index, target x, target y (mm, monitor plane)
     sNN/raw/monitor.txt                       header line, translation (3), rotation (3 x 3):
                                               monitor plane -> world, ``p_w = R p_m + t``
-    sNN/raw/imgNNN/headpose.txt               header, head translation (3), head rotation
-                                              (3 x 3; head -> world), header, six 3D landmarks
-                                              (6 x 3, world, mm): the subject's right eye's
-                                              two corners, the left eye's two, the mouth's two
+    sNN/raw/imgNNN/headpose.txt               header, head translation (3, mm), head rotation
+                                              (3 x 3; head -> world, ``p_w = R p_h + t``), header,
+                                              six 3D landmarks (6 x 3, world, mm): rows 0-1 the
+                                              subject's right eye's two corners, 2-3 the left
+                                              eye's two, 4-5 the mouth's two
     sNN/raw/imgNNN/cparams/0000000K.txt       header, 3 x 4 projection matrix P = K [R | t]
-                                              (world -> image of camera K)
-    sNN/raw/imgNNN/images/0000000K.(jpg|png|bmp)
-    sNN/raw/imgNNN/models/face_mesh.obj       the capture's reconstructed face (world, mm)
+                                              (world -> image of camera K, pixel centres at integers)
+    sNN/raw/imgNNN/images/0000000K.jpg        (another of .jpeg/.png/.bmp when there is no .jpg)
+    sNN/raw/imgNNN/models/face_mesh.obj       the capture's reconstructed face (world frame, mm)
 
 Numbers may be written bare or in NumPy's bracketed style (``[ 1.  2.  3.]``).
 Capture folder ``imgNNN`` is named after the row's index (zero-padded to 3).
 The world frame is shared by all cameras of a capture; the images carry no lens
-distortion. The dataset's release documents none of this in a form we could
-reach: the layout was reconstructed from public code that reads the release
-(docs/datasets.md lists what was checked) and the fixtures follow it. Anything
-that does not fit stops the reader with an error naming the file and line.
+distortion.
+
+Head frame: x toward the subject's left eye, y toward the chin, z into the
+head (this package's head frame, :mod:`facemesh.conventions`). The dataset
+documents none of this in a form we could reach; the layout, the landmark
+rows, the image extension, the mesh's frame and units and the head frame are
+the ones the paper author's own reader and renderer use
+(cedriclmenard/fastgaze ``gazeirislandmarks/datasets/utmultiview.py`` and
+``utmultiview_render.py``: its renderer looks at the face from ``-z`` of the
+head frame with its image's x along the head's x, which shows the face from
+the front and upright only in this frame). docs/datasets.md cites the lines.
+A head rotation in another frame is refused where the pipeline uses it
+(:func:`gazeaug.pipeline.fit_from_dataset`), never flipped. Anything that does
+not fit stops the reader with an error naming the file and line.
 
 Each capture and camera is one :class:`~gazeaug.datasets.base.GazeSample`
 whose ``mesh_path`` points at the capture's mesh: ``augment`` renders that mesh
@@ -276,9 +287,11 @@ class UTMultiview:
         pfile = cap.folder / "cparams" / f"{cam:08d}.txt"
         (p,) = _blocks(pfile, (12,))
         k, r, t = decompose_projection(p.reshape(3, 4), str(pfile))
-        images = [
-            q for q in sorted((cap.folder / "images").glob(f"{cam:08d}.*")) if q.suffix.lower() in _IMAGE_SUFFIXES
-        ]
+        images = [cap.folder / "images" / f"{cam:08d}.jpg"]  # the paper author's reader reads this one
+        if not images[0].is_file():
+            images = [
+                q for q in sorted((cap.folder / "images").glob(f"{cam:08d}.*")) if q.suffix.lower() in _IMAGE_SUFFIXES
+            ]
         if not images:
             raise DatasetError(f"{cap.folder / 'images'}: no image {cam:08d}.jpg/.png/.bmp for {pfile.name}")
         w, h = image_size(images[0])
