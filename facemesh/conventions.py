@@ -29,6 +29,11 @@ Texture coordinates (``uv``)
     W x H texture sits at ((i + 0.5) / W, (j + 0.5) / H). Open3D and trimesh
     use the other common convention (origin at the bottom-left corner, v up):
     :func:`gltf_uv_to_bottom_left_uv` converts.
+OpenGL (``opengl``): Filament's and pyrender's cameras
+    A camera's axes are glTF's (x right, y up, looking down -z; the same
+    ``diag(1, -1, -1)`` from OpenCV's, :func:`opencv_to_opengl_camera_pose`),
+    and pixel centres sit at half integers: OpenCV's pixel (i, j) is OpenGL's
+    (i + 0.5, j + 0.5) (:func:`opencv_to_opengl_pixels`).
 
 Angles
 ------
@@ -61,6 +66,13 @@ __all__ = [
     "pixels_to_uv",
     "uv_to_pixels",
     "gltf_uv_to_bottom_left_uv",
+    "opencv_to_gltf_directions",
+    "gltf_to_opencv_directions",
+    "homogeneous_pixel_centres",
+    "mediapipe_normalized_to_pixels",
+    "opencv_to_opengl_pixels",
+    "opencv_to_opengl_camera_pose",
+    "look_at_rotation",
     "pitchyaw_to_vector",
     "vector_to_pitchyaw",
     "rotation_to_head_pitchyaw",
@@ -312,3 +324,190 @@ def angular_error_deg(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
         raise ValueError("angular_error_deg: expected non-zero vectors")
     cos = np.sum(u * v, axis=-1) / (nu * nv)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def opencv_to_gltf_directions(vectors: ArrayLike) -> NDArray[np.float64]:
+    """Directions (normals, axes) in the OpenCV camera frame -> glTF axes; lengths are kept.
+
+    Convention: the axis change of :func:`opencv_to_gltf_points` without the
+    unit change, ``(x, y, z) -> (x, -y, -z)``: the direction toward an OpenCV
+    camera, ``(0, 0, -1)``, is glTF's ``(0, 0, 1)``. A rotation (determinant
+    +1), so right-hand normals stay right-hand normals.
+
+    Args:
+        vectors: (..., 3) float, any length, OpenCV camera frame.
+
+    Returns:
+        (..., 3) float64, same lengths, glTF frame.
+    """
+    return _as_points(vectors, 3, "vectors") @ OPENCV_TO_GLTF.T
+
+
+def gltf_to_opencv_directions(vectors: ArrayLike) -> NDArray[np.float64]:
+    """Directions in glTF axes -> OpenCV camera frame (inverse of :func:`opencv_to_gltf_directions`).
+
+    Args:
+        vectors: (..., 3) float, any length, glTF frame.
+
+    Returns:
+        (..., 3) float64, same lengths, OpenCV camera frame: ``(x, -y, -z)``.
+    """
+    return _as_points(vectors, 3, "vectors") @ OPENCV_TO_GLTF.T
+
+
+def homogeneous_pixel_centres(size_wh: tuple[int, int], supersample: int = 1) -> NDArray[np.float64]:
+    """Homogeneous image positions ``(x, y, 1)`` of every pixel centre (or sub-pixel sample) of an image.
+
+    Convention: OpenCV's, pixel (i, j) (column i, row j) is centred at (i, j),
+    so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]. With ``supersample``
+    s > 1 each pixel holds s x s samples on a regular grid centred on its
+    centre: sample k of pixel i (along either axis) sits at
+    ``i + (k + 0.5) / s - 0.5``. A camera's pixel -> ray matrix (``K^-1``, or
+    ``R^T K^-1`` for a turned camera) times these gives its rays.
+
+    Args:
+        size_wh: (W, H) image size in pixels.
+        supersample: samples per pixel side, >= 1.
+
+    Returns:
+        (H * s, W * s, 3) float64; row ``j * s + kj``, column ``i * s + ki``
+        is sample (ki, kj) of pixel (i, j), so ``reshape(H, s, W, s, 3)``
+        groups each pixel's samples.
+    """
+    w, h, s = int(size_wh[0]), int(size_wh[1]), int(supersample)
+    if w <= 0 or h <= 0 or s < 1:
+        raise ValueError(f"size_wh and supersample: expected positive sizes and s >= 1, got {size_wh}, {supersample}")
+    offsets = (np.arange(s) + 0.5) / s - 0.5
+    xs = (np.arange(w)[:, None] + offsets[None, :]).ravel()
+    ys = (np.arange(h)[:, None] + offsets[None, :]).ravel()
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx, gy, np.ones_like(gx)], axis=-1)
+
+
+def mediapipe_normalized_to_pixels(points_normalized: ArrayLike, size_wh: tuple[int, int]) -> NDArray[np.float64]:
+    """MediaPipe's normalized landmark positions -> image pixel coordinates.
+
+    Convention: MediaPipe gives x and y as fractions of the image's width and
+    height measured from the image's top-left *corner* ((0, 0) the corner,
+    (1, 1) the bottom-right corner); pixel coordinates put the centre of the
+    top-left pixel at (0, 0), half a pixel from the corner. So
+    ``x_px = x * W - 0.5``, ``y_px = y * H - 0.5``.
+
+    Args:
+        points_normalized: (..., 2) float, MediaPipe's (x, y) fractions.
+        size_wh: (W, H) of the image the landmarks were detected in, pixels.
+
+    Returns:
+        (..., 2) float64 pixels, image frame (pixel centres at integers).
+    """
+    p = _as_points(points_normalized, 2, "points_normalized")
+    out = np.empty_like(p)
+    out[..., 0] = p[..., 0] * size_wh[0] - 0.5
+    out[..., 1] = p[..., 1] * size_wh[1] - 0.5
+    return out
+
+
+def opencv_to_opengl_pixels(points_px: ArrayLike) -> NDArray[np.float64]:
+    """Image positions with pixel centres at integers (OpenCV) -> at half integers (OpenGL, Filament, pyrender).
+
+    Convention: both measure x to the right and y down from the image's
+    top-left corner side (as OpenGL intrinsics ``cx``, ``cy`` are given), but
+    OpenCV puts the top-left pixel's centre at (0, 0) and OpenGL at
+    (0.5, 0.5): ``(x, y) -> (x + 0.5, y + 0.5)``. Used for a principal point
+    handed to an OpenGL renderer.
+
+    Args:
+        points_px: (..., 2) float, pixels, OpenCV image frame.
+
+    Returns:
+        (..., 2) float64, pixels, OpenGL pixel-centre convention.
+    """
+    return _as_points(points_px, 2, "points_px") + 0.5
+
+
+def opencv_to_opengl_camera_pose(rotation_world_to_camera: ArrayLike, translation_mm: ArrayLike) -> NDArray[np.float64]:
+    """OpenCV extrinsics -> the 4 x 4 pose (camera -> world) of the same camera with OpenGL camera axes.
+
+    Convention: OpenCV extrinsics map a world point to the camera frame,
+    ``p_cam = R p_world + t`` (x right, y down, looking along +z); an OpenGL
+    camera node (pyrender, glTF) is placed by its pose, camera -> world, with
+    x right, y up, looking along -z. The camera centre is ``-R^T t`` and the
+    OpenGL axes are the OpenCV ones times ``diag(1, -1, -1)``
+    (:data:`OPENCV_TO_GLTF`), so the pose is
+    ``[[R^T diag(1, -1, -1), -R^T t], [0, 0, 0, 1]]``.
+
+    Args:
+        rotation_world_to_camera: (3, 3) float ``R``, world (scene) frame -> OpenCV camera frame.
+        translation_mm: (3,) float ``t``, mm (the scene's unit).
+
+    Returns:
+        (4, 4) float64 camera -> world pose, OpenGL camera axes.
+    """
+    r = np.asarray(rotation_world_to_camera, dtype=np.float64)
+    t = np.asarray(translation_mm, dtype=np.float64)
+    if r.shape != (3, 3) or t.shape != (3,):
+        raise ValueError(f"extrinsics: expected (3, 3) and (3,), got {r.shape} and {t.shape}")
+    pose = np.eye(4)
+    pose[:3, :3] = r.T @ OPENCV_TO_GLTF
+    pose[:3, 3] = -r.T @ t
+    return pose
+
+
+def look_at_rotation(
+    forward: ArrayLike, *, right: ArrayLike | None = None, down: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """The rotation of a camera looking along ``forward``, levelled by a hint for its x or its y axis.
+
+    Convention: the rows are the camera's x (right), y (down) and z
+    (forward) axes, OpenCV's, in the frame of the inputs, so the matrix maps
+    that frame's vectors into the camera's. Exactly one hint:
+
+    - ``right`` (the hint for x): ``y = normalize(z x right)``,
+      ``x = normalize(y x z)``. x lies in the plane of z and the hint, y is
+      perpendicular to the hint. Zhang's normalized camera (hint: the head's
+      x axis) and a rig's camera (hint: the rig's x axis) are built so.
+    - ``down`` (the hint for y): ``x = normalize(down x z)``,
+      ``y = normalize(z x x)``. x is perpendicular to the hint (level).
+
+    Args:
+        forward: (..., 3) float, any non-zero length: the viewing direction z.
+        right: (..., 3) float, broadcastable to ``forward``: hint for x.
+        down: (..., 3) float, broadcastable to ``forward``: hint for y.
+
+    Returns:
+        (..., 3, 3) float64 rotation, rows (x, y, z).
+
+    Raises:
+        ValueError: not exactly one hint, a zero ``forward``, or a hint
+            parallel to ``forward`` (|z x hint| < 1e-9 |hint|).
+    """
+    if right is not None and down is None:
+        hint = _as_points(right, 3, "right")
+    elif down is not None and right is None:
+        hint = _as_points(down, 3, "down")
+    else:
+        raise ValueError("look_at_rotation: give exactly one of right= and down=")
+    f = _as_points(forward, 3, "forward")
+    f, hint = np.broadcast_arrays(f, hint)
+    fn = np.sqrt(f[..., 0] * f[..., 0] + f[..., 1] * f[..., 1] + f[..., 2] * f[..., 2])[..., None]
+    if not (np.all(np.isfinite(fn)) and np.all(fn > 0)):
+        raise ValueError("look_at_rotation: forward must be finite and non-zero")
+    z = f / fn
+    first = _cross3(z, hint) if right is not None else _cross3(hint, z)  # y (right hint) or x (down hint)
+    n = np.sqrt(np.sum(first * first, axis=-1, keepdims=True))
+    if not np.all(n >= 1e-9 * np.sqrt(np.sum(hint * hint, axis=-1, keepdims=True))) or not np.all(n > 0):
+        raise ValueError("look_at_rotation: the hint is parallel to the forward axis; the rotation is undefined")
+    first = first / n
+    second = _cross3(first, z) if right is not None else _cross3(z, first)  # x = y x z, or y = z x x
+    second = second / np.sqrt(np.sum(second * second, axis=-1, keepdims=True))
+    x, y = (second, first) if right is not None else (first, second)
+    return np.stack([x, y, z], axis=-2)
+
+
+def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Cross product over the last axis of two (..., 3) arrays of one shape (without ``np.cross``'s overhead)."""
+    out = np.empty(a.shape, dtype=np.float64)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out

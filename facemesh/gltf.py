@@ -20,7 +20,7 @@ Layout of a file written by :func:`save_glb`
   - ``TEXCOORD_0``: (N, 2) the mesh's uv as stored (already glTF's convention).
 
   FaceMesh triangles are counter-clockwise seen from the camera. The axis
-  change ``diag(1, -1, -1)`` is a proper rotation (determinant +1), so it maps
+  change (:data:`facemesh.conventions.OPENCV_TO_GLTF`) is a proper rotation (determinant +1), so it maps
   each triangle's right-hand normal along with the points and keeps the
   winding: in glTF the triangles are still counter-clockwise seen from the
   camera at the origin looking down -Z, i.e. front faces, as glTF requires.
@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .conventions import gltf_to_opencv_points, opencv_to_gltf_points
+from .conventions import gltf_to_opencv_points, opencv_to_gltf_directions, opencv_to_gltf_points
 from .io import atomic_write
 from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, HeadPose, InputError
 
@@ -88,6 +88,9 @@ _TEXTURE_FORMATS = {"png": (".png", "image/png"), "jpeg": (".jpg", "image/jpeg")
 
 #: Near plane of the exported camera, metres.
 _ZNEAR_M = 0.01
+
+#: (3,) float64, glTF frame: toward the source camera (OpenCV's -z), the normal of a vertex no triangle uses.
+_TOWARD_CAMERA_GLTF = opencv_to_gltf_directions([0.0, 0.0, -1.0])
 
 
 # --------------------------------------------------------------------------- writing
@@ -141,12 +144,13 @@ def _vertex_normals(positions: NDArray[np.float64], triangles: NDArray[np.int64]
     """Area-weighted unit vertex normals.
 
     Args:
-        positions: (N, 3) float64, any frame.
+        positions: (N, 3) float64, glTF frame (any unit).
         triangles: (M, 3) int64, counter-clockwise front faces.
 
     Returns:
-        (N, 3) float32 unit vectors, same frame; ``(0, 0, 1)`` where no
-        triangle (or only degenerate ones) touches a vertex.
+        (N, 3) float32 unit vectors, same frame; toward the source camera in
+        glTF axes (``(0, 0, 1)``) where no triangle (or only degenerate ones)
+        touches a vertex.
     """
     acc = np.zeros_like(positions)
     if len(triangles):
@@ -156,7 +160,7 @@ def _vertex_normals(positions: NDArray[np.float64], triangles: NDArray[np.int64]
             np.add.at(acc, triangles[:, k], face)
     norm = np.linalg.norm(acc, axis=1)
     good = norm > 1e-12 * max(1.0, float(np.abs(positions).max(initial=0.0))) ** 2
-    out = np.tile(np.array([0.0, 0.0, 1.0]), (len(positions), 1))
+    out = np.tile(_TOWARD_CAMERA_GLTF, (len(positions), 1))
     out[good] = acc[good] / norm[good, None]
     return out.astype(np.float32)
 

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .conventions import OPENCV_TO_GLTF, gltf_uv_to_bottom_left_uv, opencv_to_gltf_points, pixels_to_uv
+from .conventions import gltf_to_opencv_directions, gltf_uv_to_bottom_left_uv, opencv_to_gltf_points, pixels_to_uv
 from .pose import solve_head_pose, undistort_to_rays
 from .reconstruct import BallPivotingSettings, ball_pivoting
 from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose, InputError
@@ -253,7 +253,7 @@ def _interop_geometry(
     if frame == "gltf":
         return gltf_m, normals, np.asarray(mesh.uv, dtype=np.float64)
     # The axis change is its own inverse and a rotation: normals map like points.
-    return np.array(mesh.vertices_mm, dtype=np.float64), normals @ OPENCV_TO_GLTF.T, np.asarray(mesh.uv)
+    return np.array(mesh.vertices_mm, dtype=np.float64), gltf_to_opencv_directions(normals), np.asarray(mesh.uv)
 
 
 def to_open3d(mesh: FaceMesh, *, frame: str = "gltf") -> open3d.geometry.TriangleMesh:

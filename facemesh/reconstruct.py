@@ -422,8 +422,19 @@ def clean_triangles(
     return np.ascontiguousarray(tri, dtype=np.int64)
 
 
-def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: ArrayLike) -> NDArray[np.int64]:
-    """Orient triangles consistently, counter-clockwise seen from ``viewpoint``.
+def orient_triangles_toward(
+    points: ArrayLike,
+    triangles: ArrayLike,
+    viewpoint: ArrayLike | None = None,
+    *,
+    direction: ArrayLike | None = None,
+) -> NDArray[np.int64]:
+    """Orient triangles consistently, counter-clockwise seen from ``viewpoint`` (or from far along ``direction``).
+
+    The one place windings are decided: Ball-Pivoting output (toward the
+    camera centre), the face model's triangulation (right-hand normals out of
+    the face: ``direction`` -z of the head frame) and the background rings of
+    :func:`gazeaug.render.render_mesh` (toward the source camera) all call it.
 
     Within each edge-connected component the winding is propagated across
     shared edges, walking the component from its first triangle: a neighbour
@@ -432,13 +443,17 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
     in each direction. Then the whole component is flipped if more of its
     triangles have their normal ``(b - a) x (c - a)`` pointing away from
     ``viewpoint`` (seen from their centroid) than toward it; a tie goes by the
-    sum of ``normal . (viewpoint - centroid)``. A non-orientable component
-    (impossible for Ball-Pivoting output on a face) keeps the walk's result.
+    sum of ``normal . (viewpoint - centroid)``. With ``direction`` instead of a
+    viewpoint (a viewpoint infinitely far along it) the same votes use
+    ``normal . direction``. A non-orientable component (impossible for
+    Ball-Pivoting output on a face) keeps the walk's result.
 
     Args:
         points: (N, 3) float vertex positions.
         triangles: (M, 3) integer vertex indices; edges should be manifold.
         viewpoint: (3,) float, same frame as ``points`` (the camera centre).
+        direction: (3,) float, same frame: where right-hand normals should
+            point (give this or ``viewpoint``, not both).
 
     Returns:
         (M, 3) int64, the same triangles in the same order, some with two
@@ -448,7 +463,12 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
         raise InputError(f"points: expected a finite (N, 3) array, got {pts.shape}")
     tri = _validate_triangles(triangles, len(pts)).copy()
-    view = _validate_point3(viewpoint, "viewpoint")
+    if viewpoint is not None and direction is None:
+        view = _validate_point3(viewpoint, "viewpoint")
+    elif direction is not None and viewpoint is None:
+        view = _validate_point3(direction, "direction")
+    else:
+        raise InputError("orient_triangles_toward: give a viewpoint or a direction, not both or neither")
     m = len(tri)
     if m == 0:
         return tri
@@ -496,7 +516,7 @@ def orient_triangles_toward(points: ArrayLike, triangles: ArrayLike, viewpoint: 
 
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
     normal = np.cross(b - a, c - a)
-    facing = np.sum(normal * (view - (a + b + c) / 3.0), axis=1)
+    facing = normal @ view if direction is not None else np.sum(normal * (view - (a + b + c) / 3.0), axis=1)
     for comp in range(n_comp):
         sel = labels == comp
         votes = np.sign(facing[sel]).sum()

@@ -34,7 +34,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from facemesh.conventions import rotation_to_head_pitchyaw, vector_to_pitchyaw
+from facemesh.conventions import (
+    homogeneous_pixel_centres,
+    look_at_rotation,
+    rotation_to_head_pitchyaw,
+    vector_to_pitchyaw,
+)
 
 from .errors import GazeAugError
 
@@ -61,12 +66,14 @@ _EYE3 = np.eye(3)
 
 
 def pixel_grid(size_wh: tuple[int, int]) -> NDArray[np.float64]:
-    """(H, W, 3) float64 homogeneous pixel centres ``(u, v, 1)`` (read-only, cached per size)."""
+    """(H, W, 3) float64 homogeneous pixel centres ``(u, v, 1)`` (read-only, cached per size).
+
+    :func:`facemesh.conventions.homogeneous_pixel_centres`, kept once per patch size.
+    """
     key = (int(size_wh[0]), int(size_wh[1]))
     grid = _GRIDS.get(key)
     if grid is None:
-        u, v = np.meshgrid(np.arange(key[0], dtype=np.float64), np.arange(key[1], dtype=np.float64))
-        grid = np.stack([u, v, np.ones_like(u)], axis=-1)
+        grid = homogeneous_pixel_centres(key)
         grid.setflags(write=False)
         _GRIDS[key] = grid
     return grid
@@ -204,28 +211,16 @@ def normalized_cameras(
     w, h = (int(v) for v in size_wh)
     if w <= 0 or h <= 0:
         raise GazeAugError(f"normalized image size: expected positive (width, height), got {size_wh}")
-    forward = e / np.linalg.norm(e, axis=1, keepdims=True)
-    down = _cross(forward, hr[:, :, 0])
-    n = np.linalg.norm(down, axis=1, keepdims=True)
-    if (n < 1e-9).any():
-        raise GazeAugError("the head's x axis is parallel to the line of sight; the normalized camera is undefined")
-    down /= n
-    right = _cross(down, forward)
-    right /= np.linalg.norm(right, axis=1, keepdims=True)
-    rot = np.stack([right, down, forward], axis=1)
+    try:  # z toward the reference point, x levelled by the head's x axis (the module docstring)
+        rot = look_at_rotation(e, right=hr[:, :, 0])
+    except ValueError as exc:
+        raise GazeAugError(
+            "the head's x axis is parallel to the line of sight; the normalized camera is undefined"
+        ) from exc
     rot.setflags(write=False)
     e = e.copy()
     e.setflags(write=False)
     return [_built_camera(rot[i], e[i], float(distance_mm), float(focal_px), (w, h)) for i in range(len(e))]
-
-
-def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Row-wise cross product of (K, 3) arrays (``np.cross`` without its generality's overhead)."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
 
 
 def _built_camera(

@@ -19,6 +19,7 @@ from facemesh.io import load_image_rgb
 from facemesh.landmarks.base import LandmarkModel, paired_face_model, select_face
 from facemesh.mesh import BuildSettings, build_face_mesh, crop_texture
 from facemesh.pose import project_points, solve_head_pose
+from facemesh.reconstruct import orient_triangles_toward
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose
 
 from .datasets.base import DatasetError, GazeSample
@@ -238,10 +239,7 @@ def dataset_mesh(fit: FaceFit, sample: GazeSample, settings: BuildSettings = MES
         raise DatasetError(f"{sample.mesh_path}: the mesh spans {extent:.3g} units; expected a face in millimetres")
     if (v[:, 2] <= 0).any():
         raise DatasetError(f"{sample.mesh_path}: part of the mesh lies behind camera {sample.camera.source}")
-    # triangles toward the camera (normals point to the camera at the origin)
-    n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
-    if np.einsum("ij,ij->", n, v[tri[:, 0]]) > 0:
-        tri = tri[:, [0, 2, 1]]
+    tri = orient_triangles_toward(v, tri, np.zeros(3))  # normals toward the camera at the origin
     px = project_points(v, sample.camera)
     texture, origin = crop_texture(fit.image, px, settings.texture_margin)
     uv = pixels_to_uv(px, origin, (texture.shape[1], texture.shape[0]))

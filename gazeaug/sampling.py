@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from facemesh.conventions import rotation_from_yaw_pitch, yaw_pitch_from_rotation
+from facemesh.conventions import look_at_rotation, rotation_from_yaw_pitch, yaw_pitch_from_rotation
 
 from .errors import GazeAugError
 
@@ -176,14 +176,10 @@ class Rig:
 
     def camera_rotation(self) -> NDArray[np.float64]:
         """(3, 3) rig frame -> camera frame: forward toward the eyes, x level with the rig's x axis."""
-        c = np.asarray(self.camera_position_mm)
-        forward = -c / np.linalg.norm(c)
-        down = np.cross(forward, np.array([1.0, 0.0, 0.0]))
-        if np.linalg.norm(down) < 1e-9:
-            raise GazeAugError(f"rig {self.name!r}: the camera lies on the line through both eyes")
-        down /= np.linalg.norm(down)
-        right = np.cross(down, forward)
-        return np.stack([right, down, forward])
+        try:
+            return look_at_rotation(-np.asarray(self.camera_position_mm), right=[1.0, 0.0, 0.0])
+        except ValueError as exc:
+            raise GazeAugError(f"rig {self.name!r}: the camera lies on the line through both eyes") from exc
 
     def distribution(self, n: int = 20000, seed: int = 0) -> HeadPoseDistribution:
         """The bivariate normal that fits this rig's head poses (mean and covariance of many draws)."""

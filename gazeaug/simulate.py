@@ -11,9 +11,12 @@ the label is the visual axis: the line to the target). The upper eyelid
 follows vertical gaze (the lid contour moves by ``lid_follow_mm * sin(pitch)``
 in the middle of the lid, less toward the corners), the lower lid a little.
 
-Images are rendered by ray casting one scene (face, rings and both eyeballs)
-through the rig's camera, with photometric variation (brightness, blur,
-noise, JPEG quality) and a plain background. ``gazeaug simulate`` writes a
+Images are rendered by ray casting one scene (face, rings and both eyeballs:
+one :class:`facemesh.render.RayCaster`) through the rig's camera; the face's
+fragments are coloured by its texture
+(:class:`facemesh.render.BilinearTextureShader`), each eyeball's by a
+:class:`gazeaug.render.shaders.EyeballShader`, misses by a plain background;
+then photometric variation (brightness, blur, noise, JPEG quality). ``gazeaug simulate`` writes a
 dataset in the plain folder format (:mod:`gazeaug.datasets.folder`), plus
 ``simulation.jsonl`` with the ground truth (head pose, eyeball axes).
 """
@@ -30,8 +33,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from facemesh.conventions import rotation_from_yaw_pitch, uv_to_pixels
-from facemesh.render import import_open3d
+from facemesh.conventions import look_at_rotation, rotation_from_yaw_pitch, vector_to_pitchyaw
+from facemesh.render import (
+    BilinearTextureShader,
+    RayCaster,
+    Shader,
+    TexelTable,
+    camera_rays,
+    import_open3d,
+    shade,
+)
 
 from .errors import GazeAugError
 from .sampling import Rig
@@ -182,12 +193,9 @@ class SimSubject:
                 self.lid_weight[i, 0 if head[i, 1] < line_y else 1] = math.sin(math.pi * u)
         self.head = head
         self.triangles = tri[~drop].astype(np.uint32)
-        th, tw = rm.texture.shape[:2]
-        corners_px = uv_to_pixels(np.asarray(rm.uv), (tw, th))[tri[~drop]]
-        self.tri_px = np.stack(
-            [corners_px[:, 0], corners_px[:, 1] - corners_px[:, 0], corners_px[:, 2] - corners_px[:, 0]], axis=1
-        ).astype(np.float32)
         self.texture = np.ascontiguousarray(rm.texture)
+        th, tw = self.texture.shape[:2]
+        self.face_shader = BilinearTextureShader(self.texture, TexelTable(rm.uv, self.triangles, (tw, th)))
         self.iris_colour = {side: self._iris_colour(image, fit.landmarks.points_px, side) for side in ("left", "right")}
         k = np.radians(s.kappa_deg) * rng.standard_normal(2) if s.kappa_deg > 0 else np.zeros(2)
         self.kappa_rad = k  # (horizontal, vertical) offset of the optical axis from the visual axis
@@ -216,12 +224,9 @@ class SimSubject:
         visual /= np.linalg.norm(visual)
         kh = self.kappa_rad[0] * (1.0 if side == "right" else -1.0)  # mirror-symmetric, nasal for both eyes
         turn = rotation_from_yaw_pitch(kh, self.kappa_rad[1])
-        # turn the visual axis about the eye by the offset, in a frame where the visual axis is -z
-        z = -visual
-        x = np.cross([0.0, 1.0, 0.0], z)
-        x /= np.linalg.norm(x)
-        y = np.cross(z, x)
-        frame = np.stack([x, y, z], axis=1)
+        # turn the visual axis about the eye by the offset, in the frame of a level camera on the visual axis
+        # looking back at the eye (the visual axis is its -z, the gaze (0, 0) of the pitch/yaw convention)
+        frame = look_at_rotation(-visual, down=[0.0, 1.0, 0.0]).T  # columns: its axes in the head frame
         return frame @ (turn @ np.array([0.0, 0.0, -1.0]))
 
     def render(
@@ -236,69 +241,41 @@ class SimSubject:
         """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame)."""
         import cv2
 
-        o3d = import_open3d()
+        from .render.shaders import EyeballShader
+
         s = self.settings
         r, t = np.asarray(head_rotation), np.asarray(head_translation_mm)
         target_head = r.T @ (np.asarray(target_mm) - t)
         axes = {side: self.optical_axis(side, target_head) for side in ("left", "right")}
         # eyelids follow the vertical gaze (mean of both eyes' pitch in the head frame; y down)
-        pitch = float(np.mean([math.asin(float(np.clip(-a[1], -1, 1))) for a in axes.values()]))
+        pitch = float(np.mean(vector_to_pitchyaw(np.stack([axes["left"], axes["right"]]))[:, 0]))
         v = self.head.copy()
         v[:, 1] -= math.sin(pitch) * (
             s.lid_follow_mm * self.lid_weight[:, 0] + s.lower_lid_follow_mm * self.lid_weight[:, 1]
         )
-        scene = o3d.t.geometry.RaycastingScene()
-        face_id = scene.add_triangles(
-            o3d.core.Tensor((v @ r.T + t).astype(np.float32)), o3d.core.Tensor(self.triangles)
-        )
-        eye_ids = {}
+        # one scene: the face (mesh 0) and both eyeballs (meshes 1, 2), each with its shader
+        caster = RayCaster([((v @ r.T + t), self.triangles)])
+        shaders: dict[int, Shader] = {0: self.face_shader}
         for side in ("left", "right"):
             c = r @ self.eye_centre[side] + t
-            eye_ids[side] = scene.add_triangles(
-                o3d.core.Tensor((self._sphere_v + c).astype(np.float32)), o3d.core.Tensor(self._sphere_t)
+            eye_id = caster.add_mesh(self._sphere_v + c, self._sphere_t)
+            shaders[eye_id] = EyeballShader(
+                centre_mm=c,
+                optical_axis=r @ axes[side],
+                radius_mm=s.eyeball_radius_mm,
+                iris_radius_mm=s.iris_radius_mm,
+                pupil_radius_mm=s.pupil_radius_mm,
+                iris_rgb=self.iris_colour[side],
             )
         w, h = size_wh
-        kinv = np.linalg.inv(camera_matrix)
-        u, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        dirs = np.stack([u, vv, np.ones_like(u)], axis=-1) @ kinv.T
-        rays = np.concatenate([np.zeros_like(dirs), dirs], axis=-1).astype(np.float32).reshape(-1, 6)
-        ans = scene.cast_rays(o3d.core.Tensor(rays))
-        geo = ans["geometry_ids"].numpy()
-        prim = ans["primitive_ids"].numpy()
-        bary = ans["primitive_uvs"].numpy()
-        t_hit = ans["t_hit"].numpy()
-        out = np.zeros((h * w, 3), dtype=np.float32)
+        rays = camera_rays(np.linalg.inv(camera_matrix), np.zeros(3), (w, h))
+        fragments = caster.trace(rays)
         # background: a soft vertical gradient of a random colour
         base = rng.uniform(60, 200, 3)
-        grad = np.linspace(0.85, 1.1, h)[:, None, None] * base
-        out[:] = np.broadcast_to(grad, (h, w, 3)).reshape(-1, 3)
-        face = geo == face_id
-        if face.any():
-            tri = self.tri_px[prim[face]]
-            px = tri[:, 0] + bary[face, 0:1] * tri[:, 1] + bary[face, 1:2] * tri[:, 2]
-            from .texture import remap_bilinear
-
-            out[face] = remap_bilinear(self.texture, px[:, 0:1], px[:, 1:2]).reshape(-1, 3)
-        flat_dirs = dirs.reshape(-1, 3)
-        for side, gid in eye_ids.items():
-            m = geo == gid
-            if not m.any():
-                continue
-            p = flat_dirs[m] * t_hit[m, None]
-            c = r @ self.eye_centre[side] + t
-            n = (p - c) / s.eyeball_radius_mm
-            cos_axis = n @ (r @ axes[side])
-            ang = np.degrees(np.arccos(np.clip(cos_axis, -1.0, 1.0)))
-            iris_ang = math.degrees(math.asin(s.iris_radius_mm / s.eyeball_radius_mm))
-            pupil_ang = math.degrees(math.asin(s.pupil_radius_mm / s.eyeball_radius_mm))
-            view = np.clip(-(n * flat_dirs[m] / np.linalg.norm(flat_dirs[m], axis=1, keepdims=True)).sum(1), 0.0, 1.0)
-            sclera = np.array([232.0, 226.0, 220.0]) * (0.55 + 0.45 * view)[:, None]
-            frac = np.clip(ang / iris_ang, 0.0, 1.0)[:, None]
-            iris = self.iris_colour[side] * (1.0 - 0.45 * frac**4)  # darker toward the limbus
-            col = np.where((ang < iris_ang)[:, None], iris, sclera)
-            col = np.where((ang < pupil_ang)[:, None], np.array([18.0, 16.0, 16.0]), col)
-            out[m] = col
-        img: NDArray[np.float64] = out.reshape(h, w, 3).astype(np.float64)
+        grad = np.broadcast_to(np.linspace(0.85, 1.1, h)[:, None, None] * base, (h, w, 3))
+        out = shade(fragments, rays, shaders, grad)
+        face = fragments.of_mesh(0)
+        img: NDArray[np.float64] = out.astype(np.float64)
         # photometric variation
         img = img * rng.uniform(*s.brightness)
         sigma = rng.uniform(*s.blur_sigma_px)
@@ -372,7 +349,7 @@ def simulate(
 
     s = settings or SimSettings()
     if per_face < 1:
-        raise GazeAugError(f"--per-face: expected >= 1, got {per_face}")
+        raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
     with staged_folder(out_dir, overwrite=overwrite, marker="simulation.json") as part:
         return _simulate_into(
             part, Path(out_dir), faces, rig, per_face=per_face, seed=seed, settings=s, progress=progress

@@ -32,6 +32,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from facemesh.render import remap_bilinear
+
 from .errors import GazeAugError
 
 __all__ = [
@@ -46,9 +48,6 @@ __all__ = [
 
 #: Pyramid levels beyond the original (footprints up to 16 source pixels per output pixel).
 MAX_LEVELS = 4
-
-# cv2.remap takes maps of at most SHRT_MAX rows.
-_MAX_REMAP_ROWS = 32000
 
 
 @dataclass(frozen=True)
@@ -162,37 +161,6 @@ def level_of_detail(coords_px: NDArray[np.float32], valid: NDArray[np.bool_]) ->
     lod = np.log2(foot2)
     lod *= np.float32(0.5)
     return lod
-
-
-def remap_bilinear(
-    image: NDArray[np.uint8],
-    mx: NDArray[np.float32],
-    my: NDArray[np.float32],
-    dtype: type[np.floating] | type[np.uint8] = np.float32,
-) -> NDArray[Any]:
-    """``cv2.remap`` (bilinear, edges replicated) for maps of any number of rows (OpenCV takes < 32767).
-
-    Args:
-        image: (h, w, 3) uint8 source.
-        mx: (R, C) float32 source x of each output pixel.
-        my: (R, C) float32 source y of each output pixel.
-        dtype: of the result: float32 (OpenCV's rounded 8-bit values, as floats) or uint8.
-
-    Returns:
-        (R, C, 3) ``dtype``.
-    """
-    import cv2
-
-    mx = np.ascontiguousarray(mx, dtype=np.float32)
-    my = np.ascontiguousarray(my, dtype=np.float32)
-    rows = mx.shape[0]
-    if rows <= _MAX_REMAP_ROWS and dtype == image.dtype:
-        return np.asarray(cv2.remap(image, mx, my, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-    out = np.empty(mx.shape + (3,), dtype=dtype)
-    for a in range(0, rows, _MAX_REMAP_ROWS):
-        b = min(rows, a + _MAX_REMAP_ROWS)
-        out[a:b] = cv2.remap(image, mx[a:b], my[a:b], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out
 
 
 def sample(

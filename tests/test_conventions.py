@@ -131,3 +131,96 @@ def test_rotation_from_yaw_pitch_batches_agree_with_the_hand_formula():
     np.testing.assert_allclose(r @ [0.0, 0.0, -1.0], expected, atol=1e-15)
     for k in range(4):
         np.testing.assert_allclose(r[k], rotation_from_yaw_pitch(yaw[k], pitch[k]), atol=1e-15)
+
+
+def test_opencv_gltf_directions_keep_lengths():
+    # the direction toward an OpenCV camera (0, 0, -1) is glTF's +z (toward the viewer)
+    np.testing.assert_array_equal(cv.opencv_to_gltf_directions([0.0, 0.0, -1.0]), [0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(cv.opencv_to_gltf_directions([[1.0, 2.0, 3.0]]), [[1.0, -2.0, -3.0]])
+    np.testing.assert_array_equal(cv.gltf_to_opencv_directions([1.0, -2.0, -3.0]), [1.0, 2.0, 3.0])
+
+
+def test_homogeneous_pixel_centres_hand_values():
+    # 3 x 2 image: pixel (i, j) centred at (i, j)
+    expected = [[[0, 0, 1], [1, 0, 1], [2, 0, 1]], [[0, 1, 1], [1, 1, 1], [2, 1, 1]]]
+    out = cv.homogeneous_pixel_centres((3, 2))
+    assert out.shape == (2, 3, 3) and out.dtype == np.float64
+    np.testing.assert_array_equal(out, expected)
+    # 2 x 2 samples per pixel of a 2 x 1 image: pixel 0 spans [-0.5, 0.5], its samples at -0.25 and 0.25;
+    # pixel 1 spans [0.5, 1.5]: 0.75 and 1.25; the one row's samples at -0.25 and 0.25
+    sub = cv.homogeneous_pixel_centres((2, 1), supersample=2)
+    assert sub.shape == (2, 4, 3)
+    np.testing.assert_array_equal(sub[0, :, 0], [-0.25, 0.25, 0.75, 1.25])
+    np.testing.assert_array_equal(sub[:, 0, 1], [-0.25, 0.25])
+    np.testing.assert_array_equal(sub[..., 2], 1.0)
+    with pytest.raises(ValueError):
+        cv.homogeneous_pixel_centres((2, 1), supersample=0)
+
+
+def test_mediapipe_normalized_to_pixels_hand_values():
+    # a 640 x 480 image: the top-left corner (0, 0) is half a pixel before the first pixel's centre,
+    # the middle (0.5, 0.5) lies between pixels 319 and 320, 239 and 240, the far corner (1, 1) at 639.5, 479.5
+    out = cv.mediapipe_normalized_to_pixels([[0.0, 0.0], [0.5, 0.5], [1.0, 1.0]], (640, 480))
+    np.testing.assert_array_equal(out, [[-0.5, -0.5], [319.5, 239.5], [639.5, 479.5]])
+
+
+def test_opencv_to_opengl_pixels_hand_values():
+    # OpenCV's top-left pixel centre (0, 0) is OpenGL's (0.5, 0.5); the principal point of a 60 x 36
+    # normalized camera (30, 18) becomes (30.5, 18.5)
+    np.testing.assert_array_equal(cv.opencv_to_opengl_pixels([[0.0, 0.0], [30.0, 18.0]]), [[0.5, 0.5], [30.5, 18.5]])
+
+
+def test_opencv_to_opengl_camera_pose_hand_values():
+    # identity rotation, the world origin 5 mm in front of the camera: the camera sits at world z = -5,
+    # its OpenGL y axis (up) is world -y and it looks down its -z, i.e. along world +z
+    pose = cv.opencv_to_opengl_camera_pose(np.eye(3), [0.0, 0.0, 5.0])
+    np.testing.assert_array_equal(pose, [[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, -5], [0, 0, 0, 1]])
+    # a camera turned 90 deg to look along world +x: rows of R are its x, y, z axes in the world,
+    # x = (0, 0, -1), y = (0, 1, 0), z = (1, 0, 0); centre at world (-7, 0, 0), so t = -R c = (0, 0, 7)
+    r = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    pose = cv.opencv_to_opengl_camera_pose(r, [0.0, 0.0, 7.0])
+    # pose columns: OpenGL x = OpenCV x = (0, 0, -1); OpenGL y = -OpenCV y = (0, -1, 0); OpenGL z = -OpenCV z
+    np.testing.assert_array_equal(pose[:3, :3], [[0, 0, -1], [0, -1, 0], [-1, 0, 0]])
+    np.testing.assert_array_equal(pose[:3, 3], [-7, 0, 0])
+    np.testing.assert_array_equal(pose[:3, :3] @ [0, 0, -1], [1, 0, 0])  # it looks along world +x
+
+
+def test_look_at_rotation_hand_values():
+    # looking along +z with the hint x: the identity
+    np.testing.assert_allclose(cv.look_at_rotation([0.0, 0.0, 3.0], right=[1.0, 0.0, 0.0]), np.eye(3), atol=1e-15)
+    # a camera below the eyes looking up at 45 deg: z = (0, -1, 1)/sqrt2 (up is -y), hint x = (1, 0, 0):
+    # y = z x x = (0, 1, 1)/sqrt2, x = y x z = (1, 0, 0); the same as the wheelchair test's matrix at 45 deg
+    h = math.sqrt(0.5)
+    np.testing.assert_allclose(
+        cv.look_at_rotation([0.0, -1.0, 1.0], right=[1.0, 0.0, 0.0]), [[1, 0, 0], [0, h, h], [0, -h, h]], atol=1e-15
+    )
+    # a hint not perpendicular to z keeps y perpendicular to it: z = +z, hint (1, 0, 1) -> x = (1, 0, 0)
+    np.testing.assert_allclose(cv.look_at_rotation([0.0, 0.0, 1.0], right=[1.0, 0.0, 1.0]), np.eye(3), atol=1e-15)
+    # looking along +x with the hint y = (0, 1, 0): x = y x z = (0, 0, -1), y = z x x = (0, 1, 0)
+    np.testing.assert_allclose(
+        cv.look_at_rotation([2.0, 0.0, 0.0], down=[0.0, 1.0, 0.0]), [[0, 0, -1], [0, 1, 0], [1, 0, 0]], atol=1e-15
+    )
+    # the down hint keeps x level: z = (0, -1, 1)/sqrt2, hint (0, 1, 0): x = (1, 0, 0), y = (0, 1, 1)/sqrt2
+    np.testing.assert_allclose(
+        cv.look_at_rotation([0.0, -1.0, 1.0], down=[0.0, 1.0, 0.0]), [[1, 0, 0], [0, h, h], [0, -h, h]], atol=1e-15
+    )
+
+
+def test_look_at_rotation_batches_and_refuses_degenerate_hints():
+    rng = np.random.default_rng(5)
+    f = rng.normal(size=(6, 3))
+    hint = rng.normal(size=(6, 3))
+    r = cv.look_at_rotation(f, right=hint)
+    assert r.shape == (6, 3, 3)
+    np.testing.assert_allclose(r @ np.transpose(r, (0, 2, 1)), np.broadcast_to(np.eye(3), (6, 3, 3)), atol=1e-14)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-14)
+    np.testing.assert_allclose(r[:, 2], f / np.linalg.norm(f, axis=1, keepdims=True), atol=1e-15)
+    np.testing.assert_allclose(np.einsum("ki,ki->k", r[:, 1], hint), 0.0, atol=1e-14)  # y perpendicular to the hint
+    for k in range(6):
+        np.testing.assert_array_equal(r[k], cv.look_at_rotation(f[k], right=hint[k]))
+    with pytest.raises(ValueError, match="parallel"):
+        cv.look_at_rotation([0.0, 0.0, 1.0], right=[0.0, 0.0, 2.0])
+    with pytest.raises(ValueError, match="exactly one"):
+        cv.look_at_rotation([0.0, 0.0, 1.0])
+    with pytest.raises(ValueError):
+        cv.look_at_rotation([0.0, 0.0, 0.0], down=[0.0, 1.0, 0.0])

@@ -163,3 +163,155 @@ def test_rotation_convention_used_by_placements():
     # the placement uses the paper's R(y, p) = R_pitch(p) R_yaw(y); check one product by hand
     r = rotation_from_yaw_pitch(np.radians(90), 0.0)
     np.testing.assert_allclose(r @ [0, 0, -1], [-1, 0, 0], atol=1e-12)  # a face turned 90 deg to its right
+
+
+# --------------------------------------------------------------------------- caster -> fragments -> shaders
+
+
+def _two_mesh_caster():
+    from facemesh.render import RayCaster
+
+    # mesh 0: one triangle in the plane z = 10; mesh 1: a 200 mm square (two triangles) in the plane z = 20
+    tri0 = (np.array([[0.0, 0, 10], [10, 0, 10], [0, 10, 10]]), np.array([[0, 1, 2]]))
+    quad = np.array([[-100.0, -100, 20], [100, -100, 20], [100, 100, 20], [-100, 100, 20]])
+    return RayCaster([tri0, (quad, np.array([[0, 1, 2], [0, 2, 3]]))])
+
+
+def test_caster_fragments_by_hand():
+    caster = _two_mesh_caster()
+    assert caster.num_meshes == 2
+    rays = np.zeros((2, 2, 6), dtype=np.float32)
+    # toward (2, 3, 10): mesh 0, where (2, 3) = b1 (10, 0) + b2 (0, 10): b = (0.2, 0.3); t = 10 for direction z = 1
+    rays[0, 0, 3:] = [0.2, 0.3, 1.0]
+    # toward (8, 6, 10): outside mesh 0 (8 + 6 > 10); at z = 20 it is (16, 12), below the quad's diagonal y = x,
+    # so triangle 0 (-100, -100), (100, -100), (100, 100): x = -100 + 200 b1 + 200 b2, y = -100 + 200 b2
+    # -> b2 = 0.56, b1 = 0.02; t = 20
+    rays[0, 1, 3:] = [0.8, 0.6, 1.0]
+    # from (0, 50, 0) along z: at z = 20 it is (0, 50), above the diagonal: triangle 1 (-100, -100),
+    # (100, 100), (-100, 100): x = -100 + 200 b1, y = -100 + 200 b1 + 200 b2 -> b1 = 0.5, b2 = 0.25; t = 20
+    rays[1, 0] = [0.0, 50.0, 0.0, 0.0, 0.0, 1.0]
+    # sideways: nothing
+    rays[1, 1, 3:] = [1.0, 0.0, 0.0]
+    f = caster.trace(rays)
+    assert f.shape == (2, 2)
+    assert f.mesh_id.dtype == np.int32 and f.triangle_id.dtype == np.int32
+    assert f.barycentrics.dtype == np.float32 and f.barycentrics.shape == (2, 2, 2) and f.distance.dtype == np.float32
+    np.testing.assert_array_equal(f.mesh_id, [[0, 1], [1, -1]])
+    np.testing.assert_array_equal(f.triangle_id, [[0, 0], [1, -1]])
+    np.testing.assert_array_equal(f.hit, [[True, True], [True, False]])
+    np.testing.assert_allclose(f.barycentrics, [[[0.2, 0.3], [0.02, 0.56]], [[0.5, 0.25], [0.0, 0.0]]], atol=1e-5)
+    np.testing.assert_allclose(f.distance[f.hit], [10.0, 20.0, 20.0], rtol=1e-5)
+    assert np.isinf(f.distance[1, 1])
+    np.testing.assert_allclose(f.points(rays, f.of_mesh(1)), [[16.0, 12.0, 20.0], [0.0, 50.0, 20.0]], atol=1e-4)
+
+
+def test_caster_refuses_bad_meshes_and_rays():
+    from facemesh.render import RayCaster
+    from facemesh.types import InputError
+
+    caster = RayCaster()
+    with pytest.raises(InputError, match="no mesh"):
+        caster.trace(np.zeros((1, 6)))
+    with pytest.raises(InputError, match="without triangles"):
+        caster.add_mesh(np.zeros((3, 3)), np.zeros((0, 3), dtype=int))
+    with pytest.raises(InputError, match="NaN"):
+        caster.add_mesh(np.full((3, 3), np.nan), [[0, 1, 2]])
+    caster.add_mesh(np.eye(3), [[0, 1, 2]])
+    with pytest.raises(InputError, match="6"):
+        caster.trace(np.zeros((4, 3)))
+
+
+def test_camera_rays_by_hand():
+    from facemesh.render import camera_rays, pinhole_pixel_to_ray
+
+    k = np.array([[100.0, 0.0, 1.0], [0.0, 100.0, 0.5], [0.0, 0.0, 1.0]])
+    rays = camera_rays(pinhole_pixel_to_ray(k), [1.0, 2.0, 3.0], (3, 2))
+    assert rays.shape == (2, 3, 6) and rays.dtype == np.float32
+    # pixel (x 2, y 1): K^-1 (2, 1, 1) = ((2 - 1) / 100, (1 - 0.5) / 100, 1)
+    np.testing.assert_allclose(rays[1, 2], [1.0, 2.0, 3.0, 0.01, 0.005, 1.0], rtol=1e-6)
+    # 2 x 2 samples per pixel: pixel (0, 0)'s first sample at (-0.25, -0.25)
+    sub = camera_rays(pinhole_pixel_to_ray(k), np.zeros(3), (3, 2), supersample=2)
+    assert sub.shape == (4, 6, 6)
+    np.testing.assert_allclose(sub[0, 0, 3:], [-0.0125, -0.0075, 1.0], rtol=1e-6)
+    # a turned camera: rows of R are its axes in the scene; R = a half turn about y: x -> -x, z -> -z
+    r = np.diag([-1.0, 1.0, -1.0])
+    turned = camera_rays(pinhole_pixel_to_ray(k, r), np.zeros(3), (3, 2))
+    np.testing.assert_allclose(turned[1, 2, 3:], [-0.01, 0.005, -1.0], rtol=1e-6)
+    # P cameras at once
+    both = camera_rays(np.stack([pinhole_pixel_to_ray(k)] * 2), [[0.0, 0, 0], [5, 0, 0]], (3, 2))
+    assert both.shape == (2, 2, 3, 6)
+    np.testing.assert_allclose(both[1, 1, 2], [5.0, 0.0, 0.0, 0.01, 0.005, 1.0], rtol=1e-6)
+
+
+def test_texel_table_by_hand():
+    from facemesh.render import TexelTable
+
+    caster = _two_mesh_caster()
+    rays = np.zeros((2, 6), dtype=np.float32)
+    rays[0, 3:] = [0.2, 0.3, 1.0]  # mesh 0 at b = (0.2, 0.3)
+    rays[1, 3:] = [0.8, 0.6, 1.0]  # mesh 1
+    f = caster.trace(rays)
+    # uv (0, 0), (1, 0), (0, 1) of a 4 x 2 texture: corners at pixels (-0.5, -0.5), (3.5, -0.5), (-0.5, 1.5);
+    # at b = (0.2, 0.3): (-0.5 + 0.2 * 4, -0.5 + 0.3 * 2) = (0.3, 0.1)
+    table = TexelTable([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [[0, 1, 2]], (4, 2))
+    px = table.texture_px(f, f.of_mesh(0))
+    assert px.shape == (2, 2) and px.dtype == np.float32
+    np.testing.assert_allclose(px, [[0.3, 0.1], [0.0, 0.0]], atol=1e-5)  # mesh 1's fragment is not this table's
+
+
+def test_shade_composites_one_shader_per_mesh():
+    from facemesh.render import shade
+
+    caster = _two_mesh_caster()
+    rays = np.zeros((3, 6), dtype=np.float32)
+    rays[:, 3:] = [[0.2, 0.3, 1.0], [0.8, 0.6, 1.0], [1.0, 0.0, 0.0]]  # mesh 0, mesh 1, nothing
+    f = caster.trace(rays)
+
+    def const(rgb):
+        def shader(fragments, rays_, mask):
+            out = np.zeros(fragments.shape + (3,), dtype=np.float32)
+            out[mask] = rgb
+            return out
+
+        return shader
+
+    out = shade(f, rays, {0: const([255, 0, 0]), 1: const([0, 0, 255])}, background=(0, 128, 0))
+    np.testing.assert_array_equal(out, [[255, 0, 0], [0, 0, 255], [0, 128, 0]])
+    out = shade(f, rays, {1: const([0, 0, 255])}, background=(0, 128, 0))  # a mesh without a shader: background
+    np.testing.assert_array_equal(out, [[0, 128, 0], [0, 0, 255], [0, 128, 0]])
+
+
+def test_eyeball_shader_by_hand():
+    from facemesh.render import Fragments
+    from gazeaug.render import EyeballShader
+
+    c = np.array([0.0, 0.0, 100.0])
+    eye = EyeballShader(c, np.array([0.0, 0.0, -1.0]), 12.0, 6.0, 2.0, np.array([100.0, 80.0, 60.0]))
+    # hits on the sphere at 0, 20 and 45 deg from the optical axis (toward the camera), seen along +z;
+    # the iris spans asin(6 / 12) = 30 deg, the pupil asin(2 / 12) = 9.6 deg
+    angles = np.radians([0.0, 20.0, 45.0])
+    points = c + 12.0 * np.stack([np.sin(angles), np.zeros(3), -np.cos(angles)], axis=1)
+    rays = np.zeros((3, 6), dtype=np.float32)
+    rays[:, :3] = points - [0.0, 0.0, 1.0]  # one unit before the hit, direction +z: distance 1
+    rays[:, 5] = 1.0
+    f = Fragments(
+        mesh_id=np.zeros(3, np.int32),
+        triangle_id=np.zeros(3, np.int32),
+        barycentrics=np.zeros((3, 2), np.float32),
+        distance=np.ones(3, np.float32),
+    )
+    out = eye(f, rays, np.array([True, True, True]))
+    pupil = [18.0, 16.0, 16.0]
+    iris = np.array([100.0, 80.0, 60.0]) * (1.0 - 0.45 * (20.0 / 30.0) ** 4)  # darker toward the limbus
+    sclera = np.array([232.0, 226.0, 220.0]) * (0.55 + 0.45 * np.cos(np.radians(45.0)))  # seen 45 deg off its normal
+    np.testing.assert_allclose(out, [pupil, iris, sclera], atol=1e-3)
+    np.testing.assert_array_equal(eye(f, rays, np.array([False, True, False]))[[0, 2]], 0.0)
+
+
+def test_background_rings_face_the_source_camera(assets):
+    rm = assets["astronaut.png"].render_mesh
+    v, tri = rm.vertices_mm, rm.triangles
+    n = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])
+    facing = np.einsum("ij,ij->i", n, -v[tri[:, 0]])  # normal . (camera centre - corner)
+    ring = tri.max(axis=1) >= rm.num_face_vertices
+    assert ring.sum() > 100 and (facing[ring] > 0).all()

@@ -5,7 +5,8 @@ Its 3-cliques are the triangles, except for a few "spurious" cliques whose
 three edges are all shared with two other cliques (a triangle spanned around a
 vertex that already has its own fan). Removing those leaves an edge-manifold
 surface with four holes: the outer face contour, both eye openings and the
-mouth opening. We orient it consistently (right-hand normals out of the face)
+mouth opening. We orient it consistently (right-hand normals out of the face,
+:func:`facemesh.reconstruct.orient_triangles_toward`)
 and close the eyes and the mouth by ear clipping, so the iris and sclera get
 texture. Only the outer contour stays open.
 
@@ -25,11 +26,12 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..reconstruct import orient_triangles_toward
+
 __all__ = [
     "triangles_from_edges",
     "edge_use_counts",
     "boundary_loops",
-    "orient_consistently",
     "ear_clip",
     "clean_triangulation_from_edges",
     "EAR_QUALITY_TIE_RAD",
@@ -98,52 +100,6 @@ def boundary_loops(triangles: ArrayLike) -> list[list[int]]:
             cur = nxt[cur]
         loops.append(loop)
     return loops
-
-
-def orient_consistently(triangles: ArrayLike, vertices: ArrayLike, outward: ArrayLike) -> NDArray[np.int64]:
-    """Give every triangle the winding of its neighbours, then make normals face ``outward`` on average.
-
-    Args:
-        triangles: (M, 3) int vertex indices, any windings.
-        vertices: (N, 3) float positions.
-        outward: (3,) the direction right-hand normals should point to (on average per component).
-
-    Returns:
-        (M, 3) int64 triangles, same order, some rows with two indices swapped.
-    """
-    tri = np.array(triangles, dtype=np.int64).reshape(-1, 3)
-    v = np.asarray(vertices, dtype=np.float64)
-    out = np.asarray(outward, dtype=np.float64)
-    edge_tris: dict[tuple[int, int], list[int]] = defaultdict(list)
-    for i, t in enumerate(tri.tolist()):
-        for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
-            edge_tris[(min(a, b), max(a, b))].append(i)
-    done = np.zeros(len(tri), dtype=bool)
-    for seed in range(len(tri)):
-        if done[seed]:
-            continue
-        component = [seed]
-        done[seed] = True
-        stack = [seed]
-        while stack:
-            i = stack.pop()
-            t = tri[i].tolist()
-            for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
-                for j in edge_tris[(min(a, b), max(a, b))]:
-                    if done[j]:
-                        continue
-                    u = tri[j].tolist()
-                    # A consistent neighbour runs the shared edge as b -> a.
-                    if (a, b) in ((u[0], u[1]), (u[1], u[2]), (u[2], u[0])):
-                        tri[j] = [u[0], u[2], u[1]]
-                    done[j] = True
-                    component.append(j)
-                    stack.append(j)
-        comp = tri[component]
-        normals = np.cross(v[comp[:, 1]] - v[comp[:, 0]], v[comp[:, 2]] - v[comp[:, 0]])
-        if float(np.sum(normals @ out)) < 0:
-            tri[component] = tri[component][:, [0, 2, 1]]
-    return tri
 
 
 #: Ears whose quality (smallest angle, radians) lies within this of the best
@@ -269,7 +225,7 @@ def clean_triangulation_from_edges(
     if max(cnt.values()) > 2:
         raise ValueError("the edge graph is not a surface: edges remain with more than two triangles")
     outward = np.array([0.0, 0.0, -1.0])
-    tri = orient_consistently(np.array(tris), v, outward)
+    tri = orient_triangles_toward(v, np.array(tris), direction=outward)
     added: list[tuple[int, int, int]] = []
     for loop in boundary_loops(tri):
         if len(loop) >= close_holes_smaller_than:
@@ -278,4 +234,4 @@ def clean_triangulation_from_edges(
         # it must run each edge the other way, so clip the reversed loop.
         added.extend(ear_clip(loop[::-1], v[:, :2]))
     full = np.vstack([tri, np.array(added, dtype=np.int64).reshape(-1, 3)])
-    return orient_consistently(full, v, outward)
+    return orient_triangles_toward(v, full, direction=outward)

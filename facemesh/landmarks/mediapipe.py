@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..conventions import mediapipe_normalized_to_pixels
 from ..types import FaceLandmarks, FaceModel
 
 __all__ = [
@@ -176,7 +177,7 @@ class MediaPipeFaceMesh:
         faces: list[FaceLandmarks] = []
         for face in result.multi_face_landmarks or []:
             raw = np.array([[p.x, p.y, p.z] for p in face.landmark], dtype=np.float64)
-            px = np.stack([raw[:, 0] * w - 0.5, raw[:, 1] * h - 0.5], axis=1)
+            px = mediapipe_normalized_to_pixels(raw[:, :2], (w, h))
             p3 = np.column_stack([px, raw[:, 2] * w])
             faces.append(FaceLandmarks(points_px=px, model_name=self.name, points_3d=p3))
         return faces

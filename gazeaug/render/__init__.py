@@ -3,6 +3,10 @@
 ``raycast`` (default; Open3D ``RaycastingScene``, CPU), ``filament`` (Open3D's
 offscreen Filament renderer; GPU or Mesa) and, for benchmarks only,
 ``pyrender`` (the paper's renderer; ``pip install gazeaug[bench]``).
+
+The ray caster and its shaders: :mod:`facemesh.render` (caster, fragments,
+bilinear texture shader) and :mod:`gazeaug.render.shaders` (mip-mapped texture,
+eyeball).
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from typing import Any
 
 from ..errors import GazeAugError
 from .base import RenderedPatches, Renderer, RenderMesh, Scene, View, fill_misses, render_mesh, view_rays_packed
+from .shaders import EyeballShader, MipTextureShader
 
 __all__ = [
     "RENDERERS",
@@ -23,6 +28,8 @@ __all__ = [
     "fill_misses",
     "render_mesh",
     "view_rays_packed",
+    "MipTextureShader",
+    "EyeballShader",
 ]
 
 #: Names :func:`create_renderer` accepts.

@@ -27,9 +27,11 @@ from numpy.typing import NDArray
 from facemesh.conventions import pixels_to_uv
 from facemesh.face_models.triangulation import boundary_loops
 from facemesh.pose import project_points
+from facemesh.reconstruct import orient_triangles_toward
+from facemesh.render import camera_rays
 from facemesh.types import FaceMesh
 
-from ..camera import NormalizedCamera, pixel_grid, pixel_to_ray_matrices
+from ..camera import NormalizedCamera, pixel_to_ray_matrices
 from ..errors import GazeAugError
 
 __all__ = [
@@ -123,29 +125,19 @@ class Renderer(Protocol):
 def view_rays_packed(views: Sequence[View]) -> NDArray[np.float32]:
     """Rays of every pixel of every view, in the mesh's (source camera) frame, as (P, H, W, 6) float32.
 
-    Each ray is ``(origin xyz, direction xyz)``. The mesh-frame ray of pixel
-    ``(u, v, 1)`` is ``A^T R^T S^-1 C_n^-1 (u, v, 1)`` from the camera centre
-    ``A^T (0 - b)``; all of them come from one product, ``(u, v, 1) @ [[0 | M^T]] + (o | 0)``
-    (the pixel's constant 1 carries the origin).
+    Each ray is ``(origin xyz, direction xyz)`` (:func:`facemesh.render.camera_rays`):
+    the mesh-frame ray of pixel ``(u, v, 1)`` is ``A^T R^T S^-1 C_n^-1 (u, v, 1)``
+    from the camera centre ``A^T (0 - b)``.
     """
     if not views:
         raise GazeAugError("no views to render")
     sizes = {v.camera.size_wh for v in views}
     if len(sizes) != 1:
         raise GazeAugError(f"views to render together must share one patch size, got {sorted(sizes)}")
-    w, h = sizes.pop()
     a = np.stack([v.rotation for v in views])
     b = np.stack([v.translation_mm for v in views])
     m = np.einsum("pji,pjk->pik", a, pixel_to_ray_matrices([v.camera for v in views]))
-    packed = np.zeros((len(views), 3, 6), dtype=np.float32)
-    packed[:, :, 3:] = m.transpose(0, 2, 1)
-    packed[:, 2, :3] = -np.einsum("pji,pj->pi", a, b)  # A^T (0 - b)
-    return np.matmul(_grid32((w, h))[None], packed).reshape(len(views), h, w, 6)
-
-
-@functools.lru_cache(maxsize=4)
-def _grid32(size_wh: tuple[int, int]) -> NDArray[np.float32]:
-    return pixel_grid(size_wh).reshape(-1, 3).astype(np.float32)
+    return camera_rays(m, -np.einsum("pji,pj->pi", a, b), sizes.pop())  # origins A^T (0 - b)
 
 
 def fill_misses(images: NDArray[Any], hit: NDArray[np.bool_]) -> NDArray[np.uint8]:
@@ -219,13 +211,9 @@ def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUN
         new_tri.append(np.stack([a, b, c], axis=1))
         new_tri.append(np.stack([a, c, d], axis=1))
         prev = cur
-    extra = np.concatenate(new_tri)
     all_v = np.concatenate([v, ring_v])
-    # orient the new triangles like the face (normals toward the source camera)
-    e1 = all_v[extra[:, 1]] - all_v[extra[:, 0]]
-    e2 = all_v[extra[:, 2]] - all_v[extra[:, 0]]
-    facing = np.einsum("ij,ij->i", np.cross(e1, e2), all_v[extra[:, 0]])
-    extra[facing > 0] = extra[facing > 0][:, [0, 2, 1]]
+    # orient the new triangles like the face: counter-clockwise seen from the source camera
+    extra = orient_triangles_toward(all_v, np.concatenate(new_tri), np.zeros(3))
     return RenderMesh(
         all_v, np.concatenate([tri, extra]), np.concatenate([uv, ring_uv]), np.asarray(mesh.texture), n, texels
     )

@@ -2,11 +2,13 @@
 
 The mesh is drawn unlit with its texture; each view sets Filament's camera
 from the normalized camera's intrinsics (``f_n ||e|| / d_n``, principal point
-``(w / 2, h / 2)``) and the extrinsics ``[R A | R b]`` (mesh frame -> normalized
-camera). Filament needs an EGL or Vulkan driver (Debian: libegl1, libgl1,
-libvulkan1, mesa-vulkan-drivers). Pixels the mesh does not cover are inpainted
-like the ray caster's; they are found with a second, flat-coloured pass only
-when the first pass shows the background colour.
+``(w / 2, h / 2)``, moved to OpenGL's pixel centres by
+:func:`facemesh.conventions.opencv_to_opengl_pixels`) and the extrinsics
+``[R A | R b]`` (mesh frame -> normalized camera). Filament needs an EGL or
+Vulkan driver (Debian: libegl1, libgl1, libvulkan1, mesa-vulkan-drivers).
+Pixels the mesh does not cover are inpainted like the ray caster's; they are
+found with a second, flat-coloured pass only when the first pass shows the
+background colour.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from facemesh.conventions import uv_to_pixels
+from facemesh.conventions import gltf_uv_to_bottom_left_uv, opencv_to_opengl_pixels, pixels_to_uv, uv_to_pixels
 from facemesh.render import import_open3d
 
 from ..errors import GazeAugError
@@ -81,10 +83,10 @@ class FilamentFaceScene:
         level = len(pyramid) - 1
         tex_l = pyramid[level]
         th, tw = mesh.texture.shape[:2]
-        x0 = uv_to_pixels(np.asarray(mesh.uv, dtype=np.float64), (tw, th)) / 2.0**level  # level-l pixels
-        uv = np.stack([(x0[:, 0] + 0.5) / tex_l.shape[1], (x0[:, 1] + 0.5) / tex_l.shape[0]], axis=1)[tri.ravel()]
-        uv[:, 1] = 1.0 - uv[:, 1]  # Open3D textures: v up from the bottom row (glTF: v down)
-        tm.triangle_uvs = o3d.utility.Vector2dVector(uv)
+        x_l = uv_to_pixels(np.asarray(mesh.uv, dtype=np.float64), (tw, th)) / 2.0**level  # level-l pixels
+        uv_l = pixels_to_uv(x_l, (0, 0), (tex_l.shape[1], tex_l.shape[0]))[tri.ravel()]
+        # Open3D textures: v up from the bottom row (glTF: v down)
+        tm.triangle_uvs = o3d.utility.Vector2dVector(gltf_uv_to_bottom_left_uv(uv_l))
         tm.triangle_material_ids = o3d.utility.IntVector(np.zeros(len(tri), dtype=np.int32))
         # Filament decodes the albedo texture as sRGB and (post-processing off) writes linear
         # values at half intensity: upload sRGB-encoded values and a base colour of encode(2),
@@ -122,9 +124,7 @@ class FilamentFaceScene:
                 raise GazeAugError(f"view size {v.camera.size_wh} differs from the scene's {self._size}")
             k = v.camera.camera_matrix.copy()
             k[0, 0] = k[1, 1] = v.camera.focal_px / v.camera.scale
-            # Filament puts pixel centres at +0.5 (OpenGL); OpenCV's (ours) at integers
-            k[0, 2] += 0.5
-            k[1, 2] += 0.5
+            k[:2, 2] = opencv_to_opengl_pixels(k[:2, 2])  # Filament: pixel centres at half integers
             ext = np.eye(4)
             ext[:3, :3] = v.camera.rotation @ v.rotation
             ext[:3, 3] = v.camera.rotation @ v.translation_mm

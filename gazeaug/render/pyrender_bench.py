@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from facemesh.conventions import gltf_uv_to_bottom_left_uv, opencv_to_opengl_camera_pose, opencv_to_opengl_pixels
+
 from ..errors import GazeAugError
 from ..normalize import NormalizationSettings
 from .base import RenderedPatches, RenderMesh, View, fill_misses
@@ -41,8 +43,7 @@ class PyrenderFaceScene:
         from PIL import Image
 
         w, h = size_wh
-        uv = np.asarray(mesh.uv, dtype=np.float64).copy()
-        uv[:, 1] = 1.0 - uv[:, 1]  # trimesh/OpenGL: v up
+        uv = gltf_uv_to_bottom_left_uv(mesh.uv)  # trimesh/OpenGL: v up
         visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(np.asarray(mesh.texture)))
         tm = trimesh.Trimesh(np.asarray(mesh.vertices_mm), np.asarray(mesh.triangles), visual=visual, process=False)
         self._scene = pyrender.Scene(bg_color=[1.0, 0.0, 1.0, 1.0], ambient_light=[1.0, 1.0, 1.0])
@@ -62,14 +63,11 @@ class PyrenderFaceScene:
         images = np.empty((len(views), h, w, 3), dtype=np.float32)
         hit = np.ones((len(views), h, w), dtype=bool)
         for i, v in enumerate(views):
-            k = v.camera.camera_matrix
+            cx, cy = opencv_to_opengl_pixels(v.camera.camera_matrix[:2, 2])  # pixel centres at half integers
             f = v.camera.focal_px / v.camera.scale
-            cam = pr.IntrinsicsCamera(f, f, k[0, 2] + 0.5, k[1, 2] + 0.5, znear=1.0, zfar=10000.0)
-            m = v.camera.rotation @ v.rotation
-            t = v.camera.rotation @ v.translation_mm
-            pose = np.eye(4)
-            pose[:3, :3] = m.T @ np.diag([1.0, -1.0, -1.0])  # OpenGL camera axes: y up, looking down -z
-            pose[:3, 3] = -m.T @ t
+            cam = pr.IntrinsicsCamera(f, f, cx, cy, znear=1.0, zfar=10000.0)
+            # mesh frame -> normalized camera: [R A | R b]; pyrender wants the camera's pose in OpenGL axes
+            pose = opencv_to_opengl_camera_pose(v.camera.rotation @ v.rotation, v.camera.rotation @ v.translation_mm)
             if self._camera_node is not None:
                 self._scene.remove_node(self._camera_node)
             self._camera_node = self._scene.add(cam, pose=pose)
