@@ -79,16 +79,16 @@ def main() -> None:
         )
         model, meta = load_model(Path(tmp) / "m.pt")
         from gazeaug.evaluate import predict_image, settings_from_meta
-        from gazeaug.pipeline import fit_face, landmark_model_for, load_input_image
+        from gazeaug.pipeline import default_landmark_model, fit_face, load_input
 
-        det = landmark_model_for(None, None)
+        det = default_landmark_model()
         settings = settings_from_meta(meta)
         paths = [data / "faces" / p for p in PHOTOS] * 4
-        img, cam, src = load_input_image(paths[0], None)
+        img, cam, src = load_input(paths[0], None)
         predict_image(model, img, fit_face(img, cam, det), settings)  # warm-up
         t0 = time.perf_counter()
         for p in paths:
-            img, cam, src = load_input_image(p, None)
+            img, cam, src = load_input(p, None)
             predict_image(model, img, fit_face(img, cam, det, source=src), settings)
         rate = len(paths) / (time.perf_counter() - t0)
         print(json.dumps({"what": "predict", "images": len(paths), "images_per_second": round(rate, 2)}))

@@ -25,7 +25,7 @@ from facemesh.io import load_image_rgb  # noqa: E402
 from gazeaug.datasets import open_dataset  # noqa: E402
 from gazeaug.experiment import _wheel_faces  # noqa: E402
 from gazeaug.normalize import normalize_image  # noqa: E402
-from gazeaug.pipeline import fit_face, landmark_model_for  # noqa: E402
+from gazeaug.pipeline import default_landmark_model, fit_face  # noqa: E402
 from gazeaug.sampling import BUILTIN_RIGS  # noqa: E402
 from gazeaug.simulate import simulate  # noqa: E402
 
@@ -44,7 +44,7 @@ def main() -> None:
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     faces = [*_wheel_faces()] + [str(args.data / "faces" / n) for n in ("sergey.png", "business-person.png")]
-    det = landmark_model_for(None, None)
+    det = default_landmark_model()
     with tempfile.TemporaryDirectory() as tmp:
         for rig in ("screen", "wheelchair"):
             out = Path(tmp) / rig

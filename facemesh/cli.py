@@ -19,7 +19,7 @@ import numpy as np
 
 from .types import FaceMeshError
 
-__all__ = ["main", "build_parser", "error_line", "REMEDIES"]
+__all__ = ["main", "build_parser", "error_line", "REMEDIES", "KEYPOINTS_HELP"]
 
 
 #: How each command line phrases an error's ``remedy`` (:class:`facemesh.types.FaceMeshError`).
@@ -30,7 +30,15 @@ REMEDIES = {
     "format": "pass --format",
     "landmarks": "pass --landmarks with the model's own points",
     "face_model": "pass --face-model (the 3D points your landmarks correspond to)",
+    "keypoints": "pass --keypoints (a layout: mediapipe, mpii6, dlib68; or the indices RO,RI,LI,LO[,MR,ML])",
 }
+
+#: Help of the ``--keypoints`` option (both command lines).
+KEYPOINTS_HELP = (
+    "which face model points are the eye and mouth corners: a layout (mediapipe, mpii6, dlib68) or the indices "
+    "RO,RI,LI,LO[,MR,ML] (right eye outer, inner, left eye inner, outer, mouth right, left); default: what the "
+    "model file says"
+)
 
 
 def error_line(exc: BaseException) -> str:
@@ -85,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument(
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
+    b.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
     b.add_argument(
         "--reconstruct",
         choices=("auto", "ball_pivoting"),
@@ -171,35 +180,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _cmd_build(args: argparse.Namespace) -> None:
-    from .build import SAMPLE_NAME, build_mesh, sample_image
-    from .camera import DefaultCameraWarning, camera_for_image
-    from .face_models import resolve_face_model
+    from .build import build_mesh, landmark_model_for, load_input
+    from .face_models import parse_keypoints
     from .gltf import save_glb
-    from .io import load_image_rgb, save_image_rgb
-    from .landmarks import ArrayLandmarkModel, MediaPipeFaceMesh, load_landmarks_file
+    from .io import save_image_rgb
     from .mesh import BuildSettings
     from .reconstruct import BallPivotingSettings
-    from .types import InputError
 
-    if args.image is None:
-        image, source = sample_image(), SAMPLE_NAME
-    else:
-        image, source = load_image_rgb(args.image), str(args.image)
-    h, w = image.shape[:2]
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", DefaultCameraWarning)
-        camera = camera_for_image(args.camera, w, h)
-    for warning in caught:
-        print(f"facemesh: warning: {warning.message}", file=sys.stderr)
-    face_model = resolve_face_model(args.face_model) if args.face_model else None
-    if args.landmarks is not None:
-        if face_model is None:
-            raise InputError("--landmarks needs --face-model: the 3D model your landmarks correspond to")
-        detector: Any = ArrayLandmarkModel(
-            load_landmarks_file(args.landmarks), face_model, name=f"user:{args.landmarks.name}"
-        )
-    else:
-        detector = MediaPipeFaceMesh()
+    image, camera, source = load_input(args.image, args.camera)  # warns when no calibration is given
+    keypoints = None if args.keypoints is None else parse_keypoints(args.keypoints)
+    detector, face_model = landmark_model_for(args.landmarks, args.face_model, keypoints)
     settings = BuildSettings(
         vertex_placement=args.vertices,
         texture_margin=args.texture_margin,

@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 
 from .conventions import gltf_to_opencv_points, opencv_to_gltf_directions, opencv_to_gltf_points
 from .io import atomic_write
-from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, HeadPose, InputError
+from .types import CameraIntrinsics, FaceKeypoints, FaceLandmarks, FaceMesh, HeadPose, InputError
 
 __all__ = ["FORMAT_VERSION", "save_glb", "load_glb", "gltf_bytes", "parse_glb"]
 
@@ -194,6 +194,7 @@ def _metadata(mesh: FaceMesh) -> dict[str, Any]:
         },
         "face_model_name": mesh.face_model_name,
         "face_model_vertices_mm": None if mesh.model_vertices_mm is None else mesh.model_vertices_mm.tolist(),
+        "face_model_keypoints": None if mesh.model_keypoints is None else mesh.model_keypoints.as_dict(),
         "vertex_placement": mesh.vertex_placement,
         "reconstruction": dict(mesh.reconstruction),
         "extras": dict(mesh.extras),
@@ -237,6 +238,7 @@ def gltf_bytes(mesh: FaceMesh, *, texture_format: str = "png") -> bytes:
     ``pose`` (3x3 ``rotation``, ``translation_mm``, ``reprojection_error_px``),
     ``landmarks`` (``model_name``, ``points_px`` (L x 2), ``points_3d`` (L x 3 or
     null)), ``face_model_name``, ``face_model_vertices_mm`` (N x 3, head frame, or null),
+    ``face_model_keypoints`` (``{"right_eye": [o, i], "left_eye": [i, o], "mouth": [r, l]}`` or null),
     ``vertex_placement``, ``reconstruction`` and
     ``extras``. See the module docstring for the layout.
 
@@ -626,6 +628,7 @@ def _build_mesh(gltf: Mapping[str, Any], binary: bytes, meta: Mapping[str, Any],
     )
     origin = meta["texture_origin_px"]
     model_vertices = meta.get("face_model_vertices_mm")
+    model_keypoints = meta.get("face_model_keypoints")
     return FaceMesh(
         vertices_mm=gltf_to_opencv_points(positions.astype(np.float64)),
         triangles=triangles,
@@ -640,4 +643,5 @@ def _build_mesh(gltf: Mapping[str, Any], binary: bytes, meta: Mapping[str, Any],
         reconstruction=dict(meta.get("reconstruction") or {}),
         extras=dict(meta.get("extras") or {}),
         model_vertices_mm=None if model_vertices is None else np.array(model_vertices, dtype=np.float64),
+        model_keypoints=None if model_keypoints is None else FaceKeypoints.from_dict(model_keypoints),
     )

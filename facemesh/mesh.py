@@ -217,6 +217,7 @@ def build_face_mesh(
         reconstruction=reconstruction,
         extras=dict(extras or {}),
         model_vertices_mm=model.vertices_mm,
+        model_keypoints=model.keypoints,
     )
 
 

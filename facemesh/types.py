@@ -23,6 +23,7 @@ __all__ = [
     "InputError",
     "NoFaceError",
     "CameraIntrinsics",
+    "FaceKeypoints",
     "FaceModel",
     "FaceLandmarks",
     "HeadPose",
@@ -116,6 +117,62 @@ class CameraIntrinsics:
 
 
 @dataclass(frozen=True)
+class FaceKeypoints:
+    """Indices of the face model points that define a face's reference points (gaze normalization uses them).
+
+    They belong to a face model (:attr:`FaceModel.keypoints`): each loader sets
+    them for the layouts it knows, the user gives them for a model of their own.
+
+    Attributes:
+        right_eye: (outer, inner) corner indices of the subject's right eye (on the image's left).
+        left_eye: (inner, outer) corner indices of the subject's left eye (on the image's right).
+        mouth: (right, left) mouth corner indices of the subject, or ``None``.
+    """
+
+    right_eye: tuple[int, int]
+    left_eye: tuple[int, int]
+    mouth: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("right_eye", "left_eye", "mouth"):
+            value = getattr(self, name)
+            if value is None and name == "mouth":
+                continue
+            pair = tuple(value)
+            if len(pair) != 2 or not all(isinstance(i, (int, np.integer)) and int(i) >= 0 for i in pair):
+                raise InputError(f"key points {name}: expected two indices >= 0, got {value!r}")
+            object.__setattr__(self, name, (int(pair[0]), int(pair[1])))
+
+    def eye(self, side: str) -> tuple[int, int]:
+        """The corner indices of the subject's ``"left"`` or ``"right"`` eye."""
+        if side not in ("left", "right"):
+            raise InputError(f"eye side: expected 'left' or 'right', got {side!r}")
+        return self.left_eye if side == "left" else self.right_eye
+
+    @property
+    def face_indices(self) -> tuple[int, ...]:
+        """The points whose mean is the face centre: the four eye corners and, when known, the mouth corners."""
+        return self.right_eye + self.left_eye + (self.mouth or ())
+
+    def as_dict(self) -> dict[str, list[int] | None]:
+        """JSON form (as recorded in a ``.glb``): ``{"right_eye": [o, i], "left_eye": [i, o], "mouth": [r, l]}``."""
+        return {
+            "right_eye": list(self.right_eye),
+            "left_eye": list(self.left_eye),
+            "mouth": None if self.mouth is None else list(self.mouth),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FaceKeypoints:
+        """Inverse of :meth:`as_dict`."""
+        try:
+            mouth = data.get("mouth")
+            return cls(tuple(data["right_eye"]), tuple(data["left_eye"]), None if mouth is None else tuple(mouth))
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"key points: expected right_eye, left_eye (and mouth) index pairs, got {data!r}") from exc
+
+
+@dataclass(frozen=True)
 class FaceModel:
     """A rigid 3D face model whose point i corresponds to landmark i.
 
@@ -125,11 +182,15 @@ class FaceModel:
         triangles: (M, 3) int64 vertex indices, counter-clockwise seen from in
             front of the face (normals point out of the face); ``None`` when
             the model has no triangulation.
+        keypoints: which points are the eye (and mouth) corners, or ``None``
+            when unknown (set by the loader for the layouts it knows, or by the
+            user); gaze normalization needs them.
     """
 
     name: str
     vertices_mm: NDArray[np.float64]
     triangles: NDArray[np.int64] | None = None
+    keypoints: FaceKeypoints | None = None
 
     def __post_init__(self) -> None:
         v = _frozen_array(self.vertices_mm, f"face model {self.name!r} vertices", (None, 3))
@@ -144,6 +205,15 @@ class FaceModel:
                     f"got [{t.min()}, {t.max()}]"
                 )
             object.__setattr__(self, "triangles", t)
+        if self.keypoints is not None and max(self.keypoints.face_indices) >= len(v):
+            raise InputError(
+                f"face model {self.name!r}: key point indices {self.keypoints.face_indices} do not fit "
+                f"a {len(v)}-point model"
+            )
+
+    def with_keypoints(self, keypoints: FaceKeypoints | None) -> FaceModel:
+        """The same model with these key points."""
+        return FaceModel(self.name, self.vertices_mm, self.triangles, keypoints)
 
     @property
     def num_points(self) -> int:
@@ -256,6 +326,7 @@ class FaceMesh:
             model's points the pose was solved with (``None`` when unknown).
             Consumers that need the model's reference points (eye centres for
             gaze normalization) read them here, so they agree with the pose.
+        model_keypoints: that face model's key points (``None`` when unknown).
     """
 
     vertices_mm: NDArray[np.float64]
@@ -271,6 +342,7 @@ class FaceMesh:
     reconstruction: Mapping[str, Any] = field(default_factory=dict)
     extras: Mapping[str, Any] = field(default_factory=dict)
     model_vertices_mm: NDArray[np.float64] | None = None
+    model_keypoints: FaceKeypoints | None = None
 
     def __post_init__(self) -> None:
         v = _frozen_array(self.vertices_mm, "mesh vertices", (None, 3))

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from facemesh.conventions import rotation_from_yaw_pitch
-from facemesh.face_models import FaceKeypoints, builtin_face_model, keypoints_for
+from facemesh.face_models import BUILTIN_MODELS, FaceKeypoints, builtin_face_model
 from facemesh.types import FaceMesh
 
 from .camera import reference_points_head
@@ -69,29 +69,29 @@ class FaceAsset:
 
 
 def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAsset:
-    """Prepare a mesh: find its face model's points and eye corners, add the background rings.
+    """Prepare a mesh: its face model's points and key points, and the background rings.
 
-    The model points come from ``mesh.model_vertices_mm`` or, for meshes written
-    before that was recorded, from the built-in model of the same name.
+    The model's points and key points come from the mesh (``mesh.model_vertices_mm``,
+    ``mesh.model_keypoints``) or, for meshes written before those were recorded, from
+    the built-in model of the same name; ``keypoints`` overrides them.
 
     Raises:
-        GazeAugError: the face model is unknown, or the layout has no known eye corners.
+        GazeAugError: the face model or its key points are unknown, or do not fit each other.
     """
-    model = mesh.model_vertices_mm
-    if model is None:
-        if mesh.face_model_name != "mediapipe":
+    model, kp = mesh.model_vertices_mm, keypoints or mesh.model_keypoints
+    if model is None or kp is None:
+        if mesh.face_model_name not in BUILTIN_MODELS:
             raise GazeAugError(
-                f"the mesh does not record its face model's points and {mesh.face_model_name!r} is not built in; "
-                "rebuild it with this version of facemesh"
+                f"the mesh does not record its face model's points and key points, and {mesh.face_model_name!r} "
+                "is not built in; rebuild it with this version of facemesh"
             )
-        model = builtin_face_model().vertices_mm
+        builtin = builtin_face_model(mesh.face_model_name)
+        model = builtin.vertices_mm if model is None else model
+        kp = kp or builtin.keypoints
+    assert kp is not None
     model = np.asarray(model, dtype=np.float64)
-    try:
-        kp = keypoints or keypoints_for(len(model))
-    except Exception as exc:
-        raise GazeAugError(f"mesh without known eye landmarks: {exc}") from exc
     if max(kp.face_indices) >= len(model):
-        raise GazeAugError(f"eye corner indices {kp.face_indices} do not fit a {len(model)}-point face model")
+        raise GazeAugError(f"key point indices {kp.face_indices} do not fit a {len(model)}-point face model")
     return FaceAsset(
         mesh=mesh,
         model_vertices_mm=model,

@@ -272,7 +272,7 @@ def normalized_camera(
     )[0]
 
 
-def reference_points_head(model_vertices_mm: ArrayLike, keypoints: FaceKeypoints) -> NDArray[np.float64]:
+def reference_points_head(model_vertices_mm: ArrayLike, keypoints: FaceKeypoints | None) -> NDArray[np.float64]:
     """The face model's three reference points in its own head frame.
 
     Args:
@@ -285,8 +285,12 @@ def reference_points_head(model_vertices_mm: ArrayLike, keypoints: FaceKeypoints
         two mouth corners), as Zhang's normalization defines them (:data:`REFERENCES`).
 
     Raises:
-        GazeAugError: the model has fewer points than the key points name.
+        GazeAugError: no key points (``remedy="keypoints"``), or the model has fewer points than they name.
     """
+    if keypoints is None:
+        raise GazeAugError(
+            "the face model does not say which of its points are the eye and mouth corners", remedy="keypoints"
+        )
     m = np.asarray(model_vertices_mm, dtype=np.float64)
     idx = keypoints.face_indices
     if m.ndim != 2 or m.shape[1] != 3 or max(idx) >= len(m):
@@ -299,7 +303,10 @@ def reference_points_head(model_vertices_mm: ArrayLike, keypoints: FaceKeypoints
 
 
 def reference_points(
-    head_rotation: ArrayLike, head_translation_mm: ArrayLike, model_vertices_mm: ArrayLike, keypoints: FaceKeypoints
+    head_rotation: ArrayLike,
+    head_translation_mm: ArrayLike,
+    model_vertices_mm: ArrayLike,
+    keypoints: FaceKeypoints | None,
 ) -> dict[str, NDArray[np.float64]]:
     """The eye and face centres of the face model posed at one head pose, camera frame.
 
@@ -358,7 +365,7 @@ def _per_pose(value: ArrayLike | None, n: int, name: str) -> NDArray[np.float64]
 
 def normalized_views(
     model_vertices_mm: ArrayLike,
-    keypoints: FaceKeypoints,
+    keypoints: FaceKeypoints | None,
     rotations: ArrayLike,
     translations_mm: ArrayLike,
     *,

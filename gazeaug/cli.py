@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from facemesh.cli import KEYPOINTS_HELP
+
 __all__ = ["main", "build_parser"]
 
 
@@ -56,6 +58,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
     p.add_argument("--face-model", default=None, help="'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy)")
+    p.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
     p.add_argument("--face-index", type=int, default=None, help="which face, largest first (default: the largest)")
 
 
@@ -267,16 +270,13 @@ def _distribution(args: argparse.Namespace) -> Any:
 
 
 def _fit_input(args: argparse.Namespace, path: Path | None) -> Any:
-    """The face in the input image (--camera, --landmarks, --face-model, --face-index), as a FaceFit."""
-    from .pipeline import fit_face, landmark_model_for, load_input_image
+    """The face in the input image (--camera, --landmarks, --face-model, --keypoints, --face-index), as a FaceFit."""
+    from facemesh.build import fit_face, landmark_model_for, load_input
+    from facemesh.face_models import parse_keypoints
 
-    image, camera, source = load_input_image(path, args.camera)
-    detector = landmark_model_for(args.landmarks, args.face_model)
-    face_model = None
-    if args.face_model is not None and args.landmarks is None:  # with --landmarks the detector carries it
-        from facemesh.face_models import resolve_face_model
-
-        face_model = resolve_face_model(args.face_model)
+    image, camera, source = load_input(path, args.camera)
+    keypoints = None if args.keypoints is None else parse_keypoints(args.keypoints)
+    detector, face_model = landmark_model_for(args.landmarks, args.face_model, keypoints)
     return fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
 
 
@@ -400,17 +400,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from .augment import face_asset
     from .bench import bench_render
     from .errors import GazeAugError
-    from .pipeline import fit_face, landmark_model_for, load_input_image, mesh_for_fit
+    from .pipeline import default_landmark_model, fit_face, load_input, mesh_for_fit
 
     if args.n < 1 or args.per_face < 1 or args.workers < 1 or args.batch < 1:
         raise GazeAugError("--n, --per-face, --workers and --batch must be >= 1")
     paths = args.faces or [None]
-    detector = landmark_model_for(None, None)
+    detector = default_landmark_model()
     assets = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for p in paths:
-            image, camera, source = load_input_image(p, None)
+            image, camera, source = load_input(p, None)
             assets.append(face_asset(mesh_for_fit(fit_face(image, camera, detector, source=source))))
     result = bench_render(
         assets,
@@ -506,12 +506,12 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from facemesh.pose import project_points
 
     from .evaluate import predict_image, settings_from_meta
-    from .pipeline import fit_face, landmark_model_for, load_input_image
+    from .pipeline import default_landmark_model, fit_face, load_input
     from .train import load_model
 
     model, meta = load_model(args.model)
-    image, camera, source = load_input_image(args.image, args.camera)
-    fit = fit_face(image, camera, landmark_model_for(None, None), source=source)
+    image, camera, source = load_input(args.image, args.camera)
+    fit = fit_face(image, camera, default_landmark_model(), source=source)
     g, sample = predict_image(model, image, fit, settings_from_meta(meta))
     assert sample.face is not None
     origin = sample.face.camera.reference_mm

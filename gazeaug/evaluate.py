@@ -97,7 +97,7 @@ def evaluate_dataset(
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
-    from .pipeline import fit_face, landmark_model_for
+    from .pipeline import default_landmark_model, fit_face
 
     if limit is not None and not (isinstance(limit, int) and limit >= 1):
         raise GazeAugError(f"limit: expected an integer >= 1, got {limit!r}")
@@ -105,7 +105,7 @@ def evaluate_dataset(
     if total == 0:
         raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
     settings = settings_from_meta(meta)
-    detector = landmark_model_for(None, None)
+    detector = default_landmark_model()
     errors, subjects, rows, skipped = [], [], [], []
     bar = None
     if progress:

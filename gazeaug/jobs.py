@@ -104,7 +104,7 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
 
     ``threads``: Embree threads per ray cast (0: all cores; 1 when several worker processes share the cores).
     """
-    from .pipeline import landmark_model_for
+    from .pipeline import default_landmark_model
 
     _STATE["settings"] = settings
     if threads == 1:  # one of several worker processes sharing the cores
@@ -114,7 +114,7 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
 
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: no traceback per worker
         cv2.setNumThreads(1)  # no nested thread pools in OpenCV
-    _STATE["detector"] = landmark_model_for(None, None)
+    _STATE["detector"] = default_landmark_model()
     if settings.kind == "augment":
         from .render import create_renderer
 
@@ -141,7 +141,6 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
     from facemesh.types import InputError, NoFaceError
 
     from .augment import face_asset, render_poses, sampled_placements
-    from .pipeline import dataset_mesh, fit_face, fit_from_dataset, mesh_for_fit
 
     s: JobSettings = _STATE["settings"]
     idx = sample.source_index
@@ -159,11 +158,9 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             f"{sample.image_path}: the image is {w}x{h} but its calibration ({sample.camera.source}) "
             f"is for {sample.camera.image_size[0]}x{sample.camera.image_size[1]}"
         )
+    provider = sample.face_provider  # detected, or the dataset's own (UT Multiview)
     try:
-        if sample.mesh_path is not None:  # the dataset's own mesh and pose (UT Multiview)
-            fit = fit_from_dataset(sample, image)
-        else:
-            fit = fit_face(image, sample.camera, _STATE["detector"], source=str(sample.image_path))
+        fit = provider.fit(sample, image, _STATE["detector"])
     except NoFaceError as exc:
         return skip(f"no face: {exc}")
     except (PoseError, GazeAugError, InputError) as exc:
@@ -198,8 +195,7 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             )
             assert source.gaze is not None
             before = np.stack([source.head_pose[0, 2], source.gaze[0, 2]])  # face frame
-            mesh = dataset_mesh(fit, sample) if sample.mesh_path is not None else mesh_for_fit(fit)
-            asset = face_asset(mesh)
+            asset = face_asset(provider.mesh(fit, sample))
             scene = _STATE["renderer"].scene(asset.render_mesh)
             yp = s.distribution.sample(s.per_sample, np.random.default_rng([s.seed, idx]))
             places = sampled_placements(asset, yp)

@@ -161,7 +161,7 @@ class NormalizedSample:
 
 def views_at(
     model_vertices_mm: ArrayLike,
-    keypoints: FaceKeypoints,
+    keypoints: FaceKeypoints | None,
     rotations: ArrayLike,
     translations_mm: ArrayLike,
     settings: NormalizationSettings,
@@ -297,7 +297,7 @@ def normalize_image(
     camera: CameraIntrinsics,
     pose: HeadPose,
     model_vertices_mm: ArrayLike,
-    keypoints: FaceKeypoints,
+    keypoints: FaceKeypoints | None,
     *,
     gaze_target_mm: ArrayLike | None = None,
     gaze_vector: ArrayLike | None = None,

@@ -370,10 +370,10 @@ def _simulate_into(
     from facemesh.io import atomic_write, save_image_rgb
 
     from .datasets.folder import write_labels_csv
-    from .pipeline import landmark_model_for, load_input_image
+    from .pipeline import default_landmark_model, load_input
 
     s = settings
-    detector = landmark_model_for(None, None)
+    detector = default_landmark_model()
     w, h = rig.image_size_wh
     k = np.array([[rig.focal_px, 0.0, (w - 1) / 2.0], [0.0, rig.focal_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     rows, truth = [], []
@@ -387,7 +387,7 @@ def _simulate_into(
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            image, _, source = load_input_image(face, None)
+            image, _, source = load_input(face, None)
         subject_id = f"sim{i:02d}"
         subj = SimSubject(image, detector, subject_id, s, np.random.default_rng([seed, i, 10**6]), source=source)
         for j in range(per_face):

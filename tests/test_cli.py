@@ -194,7 +194,12 @@ def test_bad_landmark_files(tmp_path, capsys, mpii_sample):
     seven = tmp_path / "seven.npy"
     np.save(seven, np.ones((7, 2)))
     _bad(tmp_path, capsys, [img, "--landmarks", str(seven), "--face-model", model], "7 points given")
-    _bad(tmp_path, capsys, [img, "--landmarks", str(seven)], "--landmarks needs --face-model")
+    _bad(
+        tmp_path,
+        capsys,
+        [img, "--landmarks", str(seven)],
+        "landmarks given without their face model; pass --face-model",
+    )
 
 
 def test_malformed_calibrations(tmp_path, capsys, faces_dir):

@@ -223,3 +223,56 @@ def test_derivation_is_deterministic_under_rounding_noise(model, derivation_inpu
     for _ in range(3):
         noisy = [s * (1.0 + rng.choice([-1e-12, 1e-12], size=s.shape)) for s in shapes]
         _assert_reproduces(derive_from_landmarks(names, noisy, edges), model)
+
+
+def test_key_points_belong_to_the_face_model(tmp_path):
+    """Set by each loader (or the user), never guessed from the point count."""
+    import facemesh
+    from facemesh.face_models import KEYPOINTS, load_face_model, parse_keypoints, resolve_face_model
+    from facemesh.types import FaceKeypoints, FaceModel, InputError
+
+    builtin = facemesh.builtin_face_model()
+    assert builtin.keypoints == FaceKeypoints((33, 133), (362, 263), (61, 291))
+    # a plain matrix says nothing: no key points, whatever its point count
+    six = np.array([[-45, 0, 2], [-21, 0, -2], [21, 0, -2], [45, 0, 2], [-26, 69, 0], [26, 69, 0]], float)
+    np.savetxt(tmp_path / "six.txt", six.T)
+    assert load_face_model(tmp_path / "six.txt").keypoints is None
+    m = load_face_model(tmp_path / "six.txt", keypoints=KEYPOINTS["mpii6"])
+    assert m.keypoints == KEYPOINTS["mpii6"]
+    # with key points the head frame's origin is the midpoint of the four eye corners: (0, 0, 0) here
+    np.testing.assert_allclose(m.vertices_mm, six, atol=1e-12)
+    shifted = load_face_model(_saved(tmp_path / "s.npy", six + [5, -3, 7]), keypoints=KEYPOINTS["mpii6"])
+    np.testing.assert_allclose(shifted.vertices_mm, six, atol=1e-12)
+    # the exported OBJ records them, and reads back with them
+    (tmp_path / "m.obj").write_text(facemesh.face_models.export_obj(m))
+    assert load_face_model(tmp_path / "m.obj").keypoints == KEYPOINTS["mpii6"]
+    assert resolve_face_model("mediapipe", KEYPOINTS["dlib68"]).keypoints == KEYPOINTS["dlib68"]
+    # the command lines' spelling
+    assert parse_keypoints("mpii6") == KEYPOINTS["mpii6"]
+    assert parse_keypoints("1,2,3,4") == FaceKeypoints((1, 2), (3, 4), None)
+    assert parse_keypoints(" 0,1,2,3,4,5 ") == FaceKeypoints((0, 1), (2, 3), (4, 5))
+    for bad in ("eyes", "1,2,3", "1,2,3,4,5", "-1,2,3,4", "a,b,c,d"):
+        with pytest.raises(InputError, match="key points"):
+            parse_keypoints(bad)
+    with pytest.raises(InputError, match=r"do not fit a 6-point model"):
+        FaceModel("six", six, keypoints=KEYPOINTS["mediapipe"])
+
+
+def _saved(path, array):
+    np.save(path, array)
+    return path
+
+
+def test_a_mesh_records_its_key_points(tmp_path):
+    import facemesh
+    from facemesh.face_models import KEYPOINTS
+
+    mesh = facemesh.build_mesh(
+        facemesh.sample_image(),
+        facemesh.default_camera(512, 512),
+        facemesh.landmarks.MediaPipeFaceMesh(),
+        face_model=facemesh.builtin_face_model().with_keypoints(KEYPOINTS["dlib68"]),  # any, to see it travel
+    )
+    assert mesh.model_keypoints == KEYPOINTS["dlib68"]
+    facemesh.save(mesh, tmp_path / "f.glb")
+    assert facemesh.load(tmp_path / "f.glb").model_keypoints == KEYPOINTS["dlib68"]

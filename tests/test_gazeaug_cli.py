@@ -35,11 +35,16 @@ def test_normalize_the_mpii_sample(mpii_sample, tmp_path, capsys):
         str(lm),
         "--face-model",
         str(mpii_sample / "faceModelGeneric.txt"),
+        "--keypoints",
+        "mpii6",
         "--gaze-target",
         *map(str, ann["gaze_target_3d_camera_mm"]),
         "-o",
         str(out),
     ]
+    without = [a for a in args if a not in ("--keypoints", "mpii6")]
+    assert main(without) == 2  # a plain 6-point matrix does not say which points are the eye corners
+    assert "pass --keypoints" in capsys.readouterr().err
     assert main(args) == 0
     z = load_npz(out)
     assert z["left_eye"].shape == (36, 60, 3) and "gaze_left" in z and "gaze_right" in z

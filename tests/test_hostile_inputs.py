@@ -628,7 +628,7 @@ def test_six_landmarks_with_one_300_px_off_are_refused_on_the_command_line(tmp_p
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(bad_px.tolist()))
     out = tmp_path / "out.npz"
-    common = ["--face-model", str(model), "-o", str(out)]
+    common = ["--face-model", str(model), "--keypoints", "mpii6", "-o", str(out)]
     rc, err = _gazeaug_cli(["normalize", "--landmarks", str(good), *common], capsys)
     assert rc == 0, err
     assert "reprojection" not in err

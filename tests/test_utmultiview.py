@@ -37,7 +37,7 @@ from gazeaug.datasets.utmultiview import UTMultiview, decompose_projection, read
 from gazeaug.io_h5 import read_h5
 from gazeaug.jobs import JobSettings, run_dataset
 from gazeaug.normalize import normalize_image
-from gazeaug.pipeline import dataset_mesh, fit_face, fit_from_dataset, mesh_for_fit
+from gazeaug.pipeline import fit_face, mesh_for_fit
 from gazeaug.render import create_renderer
 
 
@@ -165,7 +165,7 @@ def test_reader_gives_each_camera_its_frame(ut):
     for s in samples:
         np.testing.assert_allclose(s.camera.matrix, truth["K"], atol=1e-6)
         assert s.camera.image_size == truth["image0"].shape[1::-1] and not s.camera.distortion.any()
-        assert s.subject == "s00" and s.mesh_path is not None and s.mesh_path.name == "face_mesh.obj"
+        assert s.subject == "s00" and s.face is not None and s.face.mesh_path.name == "face_mesh.obj"
     # capture 0, camera 0: the real p00 gaze target and the pose the mesh was built at
     s0, s1 = samples[0], samples[1]
     np.testing.assert_allclose(s0.gaze_target_mm, truth["gaze0"], atol=1e-4)
@@ -289,8 +289,8 @@ def test_reader_agrees_with_the_paper_authors_reader_and_arbgaze(ut):
             np.testing.assert_allclose(s.gaze_target_mm, ref["target"], atol=1e-6)
             np.testing.assert_allclose(s.head_rotation, ref["head_r"], atol=1e-7)
             # rows 0-1 are the right eye's corners, rows 2-3 the left eye's
-            np.testing.assert_allclose(s.landmarks_3d_mm[0:2].mean(axis=0), ref["right_eye"], atol=1e-6)
-            np.testing.assert_allclose(s.landmarks_3d_mm[2:4].mean(axis=0), ref["left_eye"], atol=1e-6)
+            np.testing.assert_allclose(s.face.landmarks_3d_mm[0:2].mean(axis=0), ref["right_eye"], atol=1e-6)
+            np.testing.assert_allclose(s.face.landmarks_3d_mm[2:4].mean(axis=0), ref["left_eye"], atol=1e-6)
         np.testing.assert_allclose(s.head_translation_mm, f["head_t"], atol=1e-6)
 
 
@@ -343,8 +343,8 @@ def test_dataset_mesh_renders_like_the_normalized_image(ut, index):
     sample = list(open_dataset(root))[index]
     image = sample.load_image()
     np.testing.assert_array_equal(image, truth[f"image{index}"])
-    fit = fit_from_dataset(sample, image)
-    mesh = dataset_mesh(fit, sample)
+    fit = sample.face.fit(sample, image)
+    mesh = sample.face.mesh(fit, sample)
     assert mesh.num_vertices == len(truth["vertices"]) and mesh.vertex_placement == "dataset"
     real = normalize_image(
         image, fit.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, gaze_target_mm=sample.gaze_target_mm
@@ -367,7 +367,7 @@ def test_dataset_labels_agree_with_detected_landmarks(ut, detector):
     root, _ = ut
     sample = list(open_dataset(root))[1]
     image = sample.load_image()
-    fit_ds = fit_from_dataset(sample, image)
+    fit_ds = sample.face.fit(sample, image)
     fit_mp = fit_face(image, sample.camera, detector)
     a = normalize_image(
         image,
@@ -473,7 +473,7 @@ def test_head_frame_of_another_convention_is_refused(ut, tmp_path, turn):
     f.write_text(_headpose_text(t, r, marks.reshape(6, 3)))
     sample = next(iter(UTMultiview(tmp_path / "copy")))
     with pytest.raises(DatasetError, match="head-frame convention"):
-        fit_from_dataset(sample, sample.load_image())
+        sample.face.fit(sample, sample.load_image())
 
 
 @pytest.mark.parametrize("name", ["gazedata.csv", "monitor.txt", "img000/headpose.txt", "img000/cparams/00000001.txt"])

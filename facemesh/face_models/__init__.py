@@ -24,14 +24,18 @@ Files a user can give as ``--face-model PATH``:
 ``.npy``
     (N, 3) float array, millimetres, head frame.
 
-MediaPipe-topology models (468 or 478 points) are re-centred so that the head
-frame's origin is the midpoint of the two eye centres (see :data:`EYE_CORNERS`).
+Key points (which points are the eye and mouth corners, :class:`FaceKeypoints`)
+belong to the model: the built-in model and MediaPipe's own formats carry
+MediaPipe's, an OBJ written by ``facemesh model export`` records its own, and a
+plain matrix gets them from the user (``keypoints=`` here, ``--keypoints`` on
+the command lines: a layout name of :data:`KEYPOINTS` or indices). A model with
+key points is re-centred so that the head frame's origin is the midpoint of its
+four eye corners.
 """
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -40,14 +44,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..conventions import MEDIAPIPE_CANONICAL_TO_HEAD
-from ..types import FaceModel, InputError
+from ..types import FaceKeypoints, FaceModel, InputError
 
 __all__ = [
     "BUILTIN_MODELS",
     "EYE_CORNERS",
     "FaceKeypoints",
     "KEYPOINTS",
-    "keypoints_for",
+    "parse_keypoints",
     "builtin_face_model",
     "load_face_model",
     "resolve_face_model",
@@ -65,32 +69,6 @@ BUILTIN_MODELS = ("mediapipe",)
 EYE_CORNERS = {"right": (33, 133), "left": (362, 263)}
 
 
-@dataclass(frozen=True)
-class FaceKeypoints:
-    """Indices of the landmarks that define a face's reference points (gaze normalization uses them).
-
-    Attributes:
-        right_eye: (outer, inner) corner indices of the subject's right eye (on the image's left).
-        left_eye: (inner, outer) corner indices of the subject's left eye (on the image's right).
-        mouth: (right, left) mouth corner indices of the subject, or ``None``.
-    """
-
-    right_eye: tuple[int, int]
-    left_eye: tuple[int, int]
-    mouth: tuple[int, int] | None = None
-
-    def eye(self, side: str) -> tuple[int, int]:
-        """The corner indices of the subject's ``"left"`` or ``"right"`` eye."""
-        if side not in ("left", "right"):
-            raise InputError(f"eye side: expected 'left' or 'right', got {side!r}")
-        return self.left_eye if side == "left" else self.right_eye
-
-    @property
-    def face_indices(self) -> tuple[int, ...]:
-        """The points whose mean is the face centre: the four eye corners and, when known, the mouth corners."""
-        return self.right_eye + self.left_eye + (self.mouth or ())
-
-
 #: Key points of the landmark layouts the project knows, by name.
 KEYPOINTS = {
     "mediapipe": FaceKeypoints(right_eye=(33, 133), left_eye=(362, 263), mouth=(61, 291)),
@@ -101,19 +79,29 @@ KEYPOINTS = {
 }
 
 
-def keypoints_for(num_points: int) -> FaceKeypoints:
-    """The key points of a landmark layout recognised by its point count (468/478, 6 or 68).
+def parse_keypoints(spec: str) -> FaceKeypoints:
+    """Key points from a layout name (:data:`KEYPOINTS`) or indices ``"RO,RI,LI,LO[,MR,ML]"``.
+
+    The indices are, in order: the subject's right eye's outer and inner corners,
+    the left eye's inner and outer corners (image left to right for a frontal
+    face), then optionally the right and left mouth corners (MPIIFaceGaze's order).
 
     Raises:
-        InputError: the count matches no known layout.
+        InputError: an unknown name, or not 4 or 6 non-negative integers.
     """
-    names = {468: "mediapipe", 478: "mediapipe", 6: "mpii6", 68: "dlib68"}
-    if num_points not in names:
+    text = str(spec).strip()
+    if text in KEYPOINTS:
+        return KEYPOINTS[text]
+    try:
+        idx = [int(v) for v in text.split(",")]
+    except ValueError:
+        idx = []
+    if len(idx) not in (4, 6) or min(idx) < 0:
         raise InputError(
-            f"no known landmark layout has {num_points} points (known: 468/478 MediaPipe, 6 MPII, 68 dlib); "
-            "pass the eye corner indices explicitly"
+            f"key points: expected a layout name ({', '.join(KEYPOINTS)}) or 4 or 6 indices "
+            f"'RO,RI,LI,LO[,MR,ML]', got {spec!r}"
         )
-    return KEYPOINTS[names[num_points]]
+    return FaceKeypoints((idx[0], idx[1]), (idx[2], idx[3]), (idx[4], idx[5]) if len(idx) == 6 else None)
 
 
 #: First line of OBJ files written by :func:`export_obj`.
@@ -146,6 +134,7 @@ def builtin_face_model(name: str = "mediapipe") -> FaceModel:
         name=name,
         vertices_mm=np.asarray(arr["vertices_mm"], dtype=np.float64),
         triangles=np.asarray(arr["triangles"], dtype=np.int64),
+        keypoints=KEYPOINTS["mediapipe"],
     )
 
 
@@ -154,22 +143,22 @@ def mirror_permutation() -> NDArray[np.int64]:
     return np.asarray(_builtin_arrays()["mirror"], dtype=np.int64)
 
 
-def resolve_face_model(spec: str | Path) -> FaceModel:
-    """A built-in name (``"mediapipe"``) or a path -> :class:`FaceModel`."""
+def resolve_face_model(spec: str | Path, keypoints: FaceKeypoints | None = None) -> FaceModel:
+    """A built-in name (``"mediapipe"``) or a path -> :class:`FaceModel`; ``keypoints`` replace the loader's."""
     if isinstance(spec, str) and spec in BUILTIN_MODELS:
-        return builtin_face_model(spec)
-    return load_face_model(spec)
+        model = builtin_face_model(spec)
+        return model if keypoints is None else model.with_keypoints(keypoints)
+    return load_face_model(spec, keypoints=keypoints)
 
 
-def _recentre_mediapipe(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
-    if len(vertices) in (468, 478):
-        corners = [i for pair in EYE_CORNERS.values() for i in pair]
-        return vertices - vertices[corners].mean(axis=0)
-    return vertices
+def load_face_model(path: str | Path, keypoints: FaceKeypoints | None = None) -> FaceModel:
+    """Read a face model file (see the module docstring for the formats, units and key points).
 
-
-def load_face_model(path: str | Path) -> FaceModel:
-    """Read a face model file (see the module docstring for the formats and their units).
+    Key points: ``keypoints`` when given; else those the file records (an OBJ
+    written by :func:`export_obj`); else MediaPipe's for MediaPipe's own formats
+    (a ``.pbtxt``, or an OBJ read with MediaPipe's convention, of 468 or 478
+    points); else none (give them for a plain matrix such as MPIIFaceGaze's
+    ``faceModelGeneric.txt``: ``keypoints=KEYPOINTS["mpii6"]``).
 
     Raises:
         InputError: missing file, unknown suffix, or malformed content (the message names the file).
@@ -178,11 +167,13 @@ def load_face_model(path: str | Path) -> FaceModel:
     if not p.is_file():
         raise InputError(f"{p}: face model file not found")
     suffix = p.suffix.lower()
+    recorded: FaceKeypoints | None = None
+    mediapipe_format = False
     try:
         if suffix == ".obj":
-            verts, tris = _read_obj(p)
+            verts, tris, recorded, mediapipe_format = _read_obj(p)
         elif suffix == ".pbtxt":
-            verts, tris = _read_pbtxt(p)
+            (verts, tris), mediapipe_format = _read_pbtxt(p), True
         elif suffix in (".txt", ".csv"):
             verts, tris = _read_matrix(p), None
         elif suffix == ".npy":
@@ -195,16 +186,32 @@ def load_face_model(path: str | Path) -> FaceModel:
         raise InputError(f"{p}: cannot read face model: {exc}") from exc
     if verts.ndim != 2 or verts.shape[1] != 3:
         raise InputError(f"{p}: expected N x 3 face model points, got shape {verts.shape}")
-    verts = _recentre_mediapipe(verts)
+    mediapipe_layout = mediapipe_format and len(verts) in (468, 478)
+    kp = keypoints or recorded or (KEYPOINTS["mediapipe"] if mediapipe_layout else None)
+    if kp is not None and max(kp.face_indices) < len(verts):  # the head frame's origin between the eyes
+        verts = verts - verts[[*kp.right_eye, *kp.left_eye]].mean(axis=0)
     try:
-        return FaceModel(name=p.name, vertices_mm=verts, triangles=tris)
+        return FaceModel(name=p.name, vertices_mm=verts, triangles=tris, keypoints=kp)
     except InputError as exc:
         raise InputError(f"{p}: {exc}") from exc
 
 
-def _read_obj(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+_KEYPOINTS_COMMENT = "# keypoints "
+
+
+def _read_obj(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None, FaceKeypoints | None, bool]:
+    """Vertices, triangles, the recorded key points, and whether it was read with MediaPipe's convention."""
+    import json
+
     text = p.read_text(encoding="utf-8", errors="strict")
     ours = text.startswith(OBJ_HEADER)
+    recorded = None
+    for line in text.splitlines()[:5]:
+        if ours and line.startswith(_KEYPOINTS_COMMENT):
+            try:
+                recorded = FaceKeypoints.from_dict(json.loads(line[len(_KEYPOINTS_COMMENT) :]))
+            except json.JSONDecodeError as exc:
+                raise InputError(f"{p}: the key points comment is not valid JSON ({exc.msg})") from exc
     verts: list[list[float]] = []
     faces: list[list[int]] = []
     for lineno, line in enumerate(text.splitlines(), 1):
@@ -227,7 +234,7 @@ def _read_obj(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
     if not ours:
         v = (v @ MEDIAPIPE_CANONICAL_TO_HEAD.T) * 10.0
     t = np.asarray(faces, dtype=np.int64) if faces else None
-    return v, t
+    return v, t, recorded, not ours
 
 
 def _read_pbtxt(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
@@ -263,12 +270,16 @@ def export_obj(model: FaceModel) -> str:
 
     The first line is :data:`OBJ_HEADER`, so :func:`load_face_model` reads it back unchanged.
     """
+    import json
+
     lines = [
         OBJ_HEADER,
         f"# name: {model.name}; {model.num_points} vertices; "
         f"{0 if model.triangles is None else len(model.triangles)} triangles",
         "# head frame: x toward the subject's left ear, y toward the chin, z into the head",
     ]
+    if model.keypoints is not None:
+        lines.append(_KEYPOINTS_COMMENT + json.dumps(model.keypoints.as_dict()))
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in model.vertices_mm]
     if model.triangles is not None:
         lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in model.triangles]

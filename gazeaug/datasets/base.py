@@ -10,17 +10,24 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from facemesh.types import CameraIntrinsics
 
+if TYPE_CHECKING:
+    from facemesh.build import FaceFit
+    from facemesh.types import FaceMesh
+
 from ..errors import GazeAugError
 
 __all__ = [
     "GazeSample",
+    "FaceProvider",
+    "DetectedFace",
+    "DETECTED",
     "DatasetReader",
     "DatasetError",
     "H5ImageRef",
@@ -94,6 +101,44 @@ def parse_numbers(cells: list[str], where: str) -> NDArray[np.float64]:
     return values
 
 
+class FaceProvider(Protocol):
+    """How a sample's face is fitted and meshed (one implementation per source of faces).
+
+    :class:`DetectedFace` (the default) detects the landmarks and builds the mesh
+    from them; a dataset that ships its own pose and mesh (UT Multiview's
+    :class:`~gazeaug.datasets.utmultiview.DatasetFace`) provides both itself.
+    """
+
+    def fit(self, sample: GazeSample, image: NDArray[np.uint8], detector: Any) -> FaceFit:
+        """The face of ``image`` (the sample's image, as loaded) with its pose."""
+        ...
+
+    def mesh(self, fit: FaceFit, sample: GazeSample) -> FaceMesh:
+        """The textured mesh of a fitted face, to render at new head poses."""
+        ...
+
+
+@dataclass(frozen=True)
+class DetectedFace:
+    """The default :class:`FaceProvider`: the landmark model's largest face, and a mesh built from its landmarks."""
+
+    def fit(self, sample: GazeSample, image: NDArray[np.uint8], detector: Any) -> FaceFit:
+        """:func:`facemesh.build.fit_face` with the sample's camera."""
+        from facemesh.build import fit_face
+
+        return fit_face(image, sample.camera, detector, source=str(sample.image_path))
+
+    def mesh(self, fit: FaceFit, sample: GazeSample) -> FaceMesh:
+        """:func:`gazeaug.pipeline.mesh_for_fit` (augmentation's texture margin)."""
+        from ..pipeline import mesh_for_fit
+
+        return mesh_for_fit(fit)
+
+
+#: The default face provider.
+DETECTED = DetectedFace()
+
+
 @dataclass(frozen=True)
 class GazeSample:
     """One labelled image of a gaze dataset.
@@ -112,18 +157,18 @@ class GazeSample:
         head_rotation: (3, 3) float64 head -> camera rotation from the dataset, or ``None``.
         head_translation_mm: (3,) float64, mm, from the dataset, or ``None``.
         landmarks_px: (L, 2) float64, pixels, image frame: the dataset's own landmarks, or ``None``.
-        face_model_mm: (L, 3) float64, mm, head frame: the 3D model of those landmarks, or ``None``.
         rotate_180: the image file must be turned by 180 deg before use (ETH-XGaze's cameras
             3, 6 and 13 were mounted upside down; their labels refer to the turned image).
         image_ref: where the image is when it is not a file of its own (an HDF5 row); then
             ``image_path`` names the container, for messages.
-        landmarks_3d_mm: (L, 3) float64, mm, camera frame: the dataset's own 3D landmarks
-            (UT Multiview: right eye's two corners, left eye's two, mouth's two), or ``None``.
-        mesh_path: a face mesh of this capture shipped with the dataset (UT Multiview's
-            reconstructions), used instead of building one from detected landmarks; or ``None``.
-        mesh_to_camera: (3, 4) float64 ``[R | t]``, mm: the mesh's frame -> this camera's frame
-            (``p_cam = R p_mesh + t``); required with ``mesh_path``.
+        face: how the face is found and meshed when the dataset says more than the image
+            (UT Multiview's own pose, landmarks and mesh: a :class:`FaceProvider`); ``None``:
+            detected by the landmark model (:data:`DETECTED`). See :attr:`face_provider`.
         extras: anything else the reader wants to keep (JSON-serialisable).
+
+    The head pose, landmarks and gaze origin are the dataset's own annotations, kept
+    for users and for checks of the readers; the pipeline fits the face itself
+    unless ``face`` says otherwise.
     """
 
     image_path: Path
@@ -136,13 +181,15 @@ class GazeSample:
     head_rotation: NDArray[np.float64] | None = None
     head_translation_mm: NDArray[np.float64] | None = None
     landmarks_px: NDArray[np.float64] | None = None
-    face_model_mm: NDArray[np.float64] | None = None
     rotate_180: bool = False
     image_ref: H5ImageRef | None = None
-    landmarks_3d_mm: NDArray[np.float64] | None = None
-    mesh_path: Path | None = None
-    mesh_to_camera: NDArray[np.float64] | None = None
+    face: FaceProvider | None = None
     extras: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def face_provider(self) -> FaceProvider:
+        """:attr:`face`, or :data:`DETECTED` (the landmark model's face and a mesh built from it)."""
+        return self.face if self.face is not None else DETECTED
 
     def load_image(self) -> NDArray[np.uint8]:
         """(H, W, 3) uint8 RGB, turned when :attr:`rotate_180` says so."""
@@ -159,7 +206,6 @@ class GazeSample:
             ("gaze_origin_mm", (3,)),
             ("head_rotation", (3, 3)),
             ("head_translation_mm", (3,)),
-            ("mesh_to_camera", (3, 4)),
         ):
             v = getattr(self, name)
             if v is None:
@@ -180,26 +226,14 @@ class GazeSample:
             g = np.asarray(self.gaze_vector) / n
             g.setflags(write=False)
             object.__setattr__(self, "gaze_vector", g)
-        if self.mesh_path is not None:
-            object.__setattr__(self, "mesh_path", Path(self.mesh_path))
-            if self.mesh_to_camera is None or self.head_rotation is None or self.head_translation_mm is None:
+        if self.landmarks_px is not None:
+            a = np.array(self.landmarks_px, dtype=np.float64)
+            if a.ndim != 2 or a.shape[1] != 2 or not np.isfinite(a).all():
                 raise DatasetError(
-                    f"sample {self.source_index} ({self.image_path}): a dataset mesh needs mesh_to_camera "
-                    "and the head pose"
-                )
-            if self.landmarks_3d_mm is None:
-                raise DatasetError(f"sample {self.source_index} ({self.image_path}): a dataset mesh needs 3D landmarks")
-        for name, cols in (("landmarks_px", 2), ("face_model_mm", 3), ("landmarks_3d_mm", 3)):
-            v = getattr(self, name)
-            if v is None:
-                continue
-            a = np.array(v, dtype=np.float64)
-            if a.ndim != 2 or a.shape[1] != cols or not np.isfinite(a).all():
-                raise DatasetError(
-                    f"sample {self.source_index} ({self.image_path}): {name}: expected finite (L, {cols})"
+                    f"sample {self.source_index} ({self.image_path}): landmarks_px: expected finite (L, 2)"
                 )
             a.setflags(write=False)
-            object.__setattr__(self, name, a)
+            object.__setattr__(self, "landmarks_px", a)
 
 
 class DatasetReader(Protocol):

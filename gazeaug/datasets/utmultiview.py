@@ -31,13 +31,14 @@ the ones the paper author's own reader and renderer use
 head frame with its image's x along the head's x, which shows the face from
 the front and upright only in this frame). docs/datasets.md cites the lines.
 A head rotation in another frame is refused where the pipeline uses it
-(:func:`gazeaug.pipeline.fit_from_dataset`), never flipped. Anything that does
+(:meth:`DatasetFace.fit`), never flipped. Anything that does
 not fit stops the reader with an error naming the file and line.
 
 Each capture and camera is one :class:`~gazeaug.datasets.base.GazeSample`
-whose ``mesh_path`` points at the capture's mesh: ``augment`` renders that mesh
-(textured from the sample's own image) instead of building one from detected
-landmarks, as the paper did for this dataset.
+whose face provider is a :class:`DatasetFace`: ``augment`` and
+``normalize-dataset`` take the dataset's pose and landmarks and render the
+capture's mesh (textured from the sample's own image) instead of detecting a
+face and building a mesh, as the paper did for this dataset.
 """
 
 from __future__ import annotations
@@ -46,15 +47,27 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from facemesh.types import CameraIntrinsics
+from facemesh.build import FaceFit
+from facemesh.face_models import KEYPOINTS
+from facemesh.pose import project_points
+from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose
 
 from .base import DatasetError, GazeSample, image_size, parse_numbers
 
-__all__ = ["UTMultiview", "decompose_projection", "read_number_blocks", "looks_like_utmultiview"]
+__all__ = [
+    "UTMultiview",
+    "DatasetFace",
+    "DATASET_LANDMARKS",
+    "decompose_projection",
+    "read_number_blocks",
+    "looks_like_utmultiview",
+    "load_obj_mesh",
+]
 
 _IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 _SUBJECT = re.compile(r"^s\d+$")
@@ -305,9 +318,7 @@ class UTMultiview:
             gaze_target_mm=r @ cap.target_world_mm + t,
             head_rotation=r @ r_head,
             head_translation_mm=r @ t_head + t,
-            landmarks_3d_mm=marks @ r.T + t,
-            mesh_path=mesh,
-            mesh_to_camera=world_to_cam,
+            face=DatasetFace(landmarks_3d_mm=marks @ r.T + t, mesh_path=mesh, mesh_to_camera=world_to_cam),
             extras={"capture": cap.folder.name, "camera": cam, "gazedata": cap.where},
         )
 
@@ -318,3 +329,142 @@ def _is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+#: Name of the 6-point layout of the dataset's own 3D landmarks.
+DATASET_LANDMARKS = "dataset6"
+
+_OBJ_CACHE: dict[str, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
+
+
+def load_obj_mesh(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Vertices and triangles of an OBJ file, in file order (nothing merged; the last file is cached).
+
+    Returns:
+        ``(vertices, triangles)``: (V, 3) float64 in the file's units and frame; (T, 3) int64.
+
+    Raises:
+        DatasetError: missing, unreadable or empty file.
+    """
+    key = str(path)
+    if key in _OBJ_CACHE:
+        return _OBJ_CACHE[key]
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"{p}: mesh file not found")
+    import trimesh
+
+    try:
+        mesh = trimesh.load(p, file_type="obj", process=False, maintain_order=True, force="mesh", skip_materials=True)
+    except Exception as exc:  # trimesh raises many kinds on malformed files
+        raise DatasetError(f"{p}: cannot read the mesh ({exc})") from exc
+    v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    if len(v) < 3 or len(f) < 1 or not np.isfinite(v).all():
+        raise DatasetError(f"{p}: no usable triangles (vertices {len(v)}, faces {len(f)})")
+    _OBJ_CACHE.clear()
+    _OBJ_CACHE[key] = (v, f)
+    return v, f
+
+
+@dataclass(frozen=True)
+class DatasetFace:
+    """The face as UT Multiview describes it: a face provider (:class:`~gazeaug.datasets.base.FaceProvider`).
+
+    Nothing is detected: the pose and the face model come from the dataset's head
+    pose and six 3D landmarks, the mesh is the capture's own reconstruction
+    (textured from the sample's image), as the paper did for this dataset.
+
+    Attributes:
+        landmarks_3d_mm: (6, 3) float64, mm, this camera's frame: rows 0-1 the subject's
+            right eye's two corners, 2-3 the left eye's two, 4-5 the mouth's two.
+        mesh_path: the capture's ``models/face_mesh.obj`` (world frame, mm).
+        mesh_to_camera: (3, 4) float64 ``[R | t]``, mm: world -> this camera's frame
+            (``p_cam = R p_world + t``).
+    """
+
+    landmarks_3d_mm: NDArray[np.float64]
+    mesh_path: Path
+    mesh_to_camera: NDArray[np.float64]
+
+    def fit(self, sample: GazeSample, image: NDArray[np.uint8], detector: Any = None) -> FaceFit:
+        """The face fitted from the dataset's head pose and 3D landmarks (``detector`` unused).
+
+        The face model is the six landmarks in the head frame, re-centred between the
+        eyes (the head frame's origin in this package), with MPIIFaceGaze's key points
+        (eye corners, then mouth corners), so eye centres and normalized cameras come
+        from the dataset's own landmarks.
+
+        Raises:
+            DatasetError: no head pose, or a head frame whose axes do not follow the
+                convention (x toward the subject's left eye, y toward the chin).
+        """
+        where = f"sample {sample.source_index} ({sample.image_path})"
+        if sample.head_rotation is None or sample.head_translation_mm is None:
+            raise DatasetError(f"{where}: the dataset gives no head pose")
+        marks = np.asarray(self.landmarks_3d_mm, dtype=np.float64)
+        if marks.shape != (6, 3):
+            raise DatasetError(f"{where}: 3D landmarks: expected (6, 3), got {marks.shape}")
+        r, t = np.asarray(sample.head_rotation), np.asarray(sample.head_translation_mm)
+        head = (marks - t) @ r  # head frame
+        kp = KEYPOINTS["mpii6"]  # the six points' order: the eyes' corners, then the mouth's
+        right, left = head[list(kp.right_eye)].mean(axis=0), head[list(kp.left_eye)].mean(axis=0)
+        mid = 0.5 * (right + left)
+        eye_line = (left - right) / max(float(np.linalg.norm(left - right)), 1e-9)
+        down = head[list(kp.mouth or ())].mean(axis=0) - mid
+        down /= max(float(np.linalg.norm(down)), 1e-9)
+        if eye_line[0] < np.cos(np.radians(30)) or down[1] < np.cos(np.radians(45)):
+            raise DatasetError(
+                f"{where}: the dataset's head rotation does not follow the head-frame convention "
+                f"(x toward the subject's left eye, y toward the chin): in its frame the eye line points "
+                f"{np.round(eye_line, 3).tolist()} and the mouth lies toward {np.round(down, 3).tolist()}"
+            )
+        model = FaceModel(DATASET_LANDMARKS, head - mid, keypoints=kp)
+        pose = HeadPose(r, t + r @ mid)
+        landmarks = FaceLandmarks(project_points(marks, sample.camera), DATASET_LANDMARKS)
+        return FaceFit(image, sample.camera, landmarks, model, pose, str(sample.image_path))
+
+    def mesh(self, fit: FaceFit, sample: GazeSample) -> FaceMesh:
+        """The capture's own mesh, moved into this camera's frame and textured from this sample's image.
+
+        Each vertex's texture coordinate is where the camera sees it, as for meshes
+        built from landmarks (parts hidden from this camera take the colour of what
+        hides them).
+
+        Raises:
+            DatasetError: the mesh is missing or unreadable, or its size is not that of a face in mm.
+        """
+        from facemesh.conventions import pixels_to_uv
+        from facemesh.mesh import crop_texture
+        from facemesh.reconstruct import orient_triangles_toward
+
+        from ..pipeline import MESH_SETTINGS
+
+        v, tri = load_obj_mesh(self.mesh_path)
+        m = np.asarray(self.mesh_to_camera)
+        v = v @ m[:, :3].T + m[:, 3]
+        extent = float(np.ptp(v, axis=0).max())
+        if not 50.0 <= extent <= 1000.0:
+            raise DatasetError(f"{self.mesh_path}: the mesh spans {extent:.3g} units; expected a face in millimetres")
+        if (v[:, 2] <= 0).any():
+            raise DatasetError(f"{self.mesh_path}: part of the mesh lies behind camera {sample.camera.source}")
+        tri = orient_triangles_toward(v, tri, np.zeros(3))  # normals toward the camera at the origin
+        px = project_points(v, sample.camera)
+        texture, origin = crop_texture(fit.image, px, MESH_SETTINGS.texture_margin)
+        uv = pixels_to_uv(px, origin, (texture.shape[1], texture.shape[0]))
+        return FaceMesh(
+            vertices_mm=v,
+            triangles=tri,
+            uv=uv,
+            texture=texture,
+            texture_origin_px=origin,
+            landmarks=fit.landmarks,
+            camera=fit.camera,
+            pose=fit.pose,
+            face_model_name=DATASET_LANDMARKS,
+            vertex_placement="dataset",
+            reconstruction={"method": "dataset", "mesh": str(self.mesh_path)},
+            extras={"source_image": fit.source},
+            model_vertices_mm=fit.model.vertices_mm,
+            model_keypoints=fit.model.keypoints,
+        )
