@@ -95,6 +95,13 @@ def _add_distribution_options(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gazeaug`` command."""
     from . import __version__
+    from .datasets import DATASETS
+    from .models import MODELS
+    from .render import RENDERERS
+
+    formats = DATASETS.names()  # the registries' names: listing them imports no reader, renderer or model
+    renderers = RENDERERS.names(benchmark_only=False)
+    format_help = "dataset format (default: detected from the folder's layout)"
 
     parser = _Parser(
         prog="gazeaug",
@@ -120,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--distance-to-camera", type=_finite, default=None, help="head distance in mm (default: the photo's)"
     )
-    r.add_argument("--renderer", choices=("raycast", "filament"), default="raycast", help="default raycast")
+    r.add_argument("--renderer", choices=renderers, default="raycast", help="default raycast")
     _add_input_options(r)
     _add_gaze_options(r)
     _add_normalization_options(r)
@@ -131,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     pv.add_argument("-o", "--output", type=Path, required=True, help="contact sheet .png (the plot goes beside it)")
     pv.add_argument("-n", type=_positive_int, default=16, help="number of augmented samples (default 16)")
     pv.add_argument("--seed", type=int, default=0)
-    pv.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
+    pv.add_argument("--renderer", choices=renderers, default="raycast")
     _add_input_options(pv)
     _add_gaze_options(pv)
     _add_normalization_options(pv)
@@ -144,10 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         a = sub.add_parser(name, help=help_)
         a.add_argument("dataset", type=Path, help="the dataset's root folder")
         a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
-        a.add_argument(
-            "--format",
-            choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder"),
-        )
+        a.add_argument("--format", choices=formats, help=format_help)
         a.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
         a.add_argument("--seed", type=int, default=0)
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
@@ -159,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
             a.add_argument(
                 "--per-sample", type=_positive_int, default=4, help="K augmented samples per input sample (default 4)"
             )
-            a.add_argument("--renderer", choices=("raycast", "filament"), default="raycast")
+            a.add_argument("--renderer", choices=renderers, default="raycast")
             _add_distribution_options(a)
 
     t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
@@ -173,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--lr", type=_finite, default=1e-3)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    t.add_argument("--model", default="mobilenet_gaze", help="registered model name")
+    t.add_argument("--model", choices=MODELS.names(), default="mobilenet_gaze", help="registered model name")
     t.add_argument("--resume", action="store_true", help="continue from the model's checkpoint")
     t.add_argument("--quiet", action="store_true")
 
@@ -181,9 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("model", type=Path)
     ev.add_argument("dataset", type=Path, help="a dataset folder (any reader) or a normalized .h5")
     ev.add_argument("-o", "--output", type=Path, required=True, help="report folder (errors.json/.csv/_hist.png)")
-    ev.add_argument(
-        "--format", choices=("mpiifacegaze", "ethxgaze", "ethxgaze_normalized", "gazecapture", "utmultiview", "folder")
-    )
+    ev.add_argument("--format", choices=formats, help=format_help)
     ev.add_argument("--limit", type=_positive_int, default=None)
     ev.add_argument("--quiet", action="store_true")
 
@@ -212,8 +214,8 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--faces", type=Path, nargs="*", default=None, help="extra face photos for the simulated setup")
     xp.add_argument("--large", action="store_true", help="a larger simulated setup (more images per face)")
     xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
-    xp.add_argument("--train-format", default=None)
-    xp.add_argument("--test-format", default=None)
+    xp.add_argument("--train-format", choices=formats, default=None, help=format_help)
+    xp.add_argument("--test-format", choices=formats, default=None, help=format_help)
     xp.add_argument("--per-sample", type=_positive_int, default=4)
     xp.add_argument("--epochs", type=_positive_int, default=10)
     xp.add_argument("--batch-size", type=_positive_int, default=256)
@@ -226,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
-    br.add_argument("--renderer", choices=("raycast", "filament", "pyrender"), default="raycast")
+    br.add_argument("--renderer", choices=RENDERERS.names(), default="raycast")
     br.add_argument("--n", type=_positive_int, default=2000, help="samples (two patches each; default 2000)")
     br.add_argument(
         "--per-face", type=_positive_int, default=16, help="samples per face before a new face (default 16)"

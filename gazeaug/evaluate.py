@@ -29,8 +29,9 @@ from facemesh.conventions import angular_error_deg, pitchyaw_to_vector
 
 from .datasets.base import DatasetError, DatasetReader
 from .errors import GazeAugError
+from .io_h5 import H5TrainingSet
 from .normalize import NormalizationSettings, NormalizedSample, gaze_direction, normalize_image
-from .train import H5TrainingSet, angular_errors_deg, predict_arrays
+from .train import angular_errors_deg, predict_arrays
 
 __all__ = ["evaluate_h5", "evaluate_dataset", "predict_image", "write_report", "settings_from_meta"]
 

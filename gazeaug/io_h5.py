@@ -1,4 +1,8 @@
-"""HDF5 training sets: the schema, a streaming writer that can resume, and a reader.
+"""HDF5 training sets: the schema, its one writer (:class:`H5Writer`, resumable) and its one reader.
+
+:class:`H5TrainingSet` reads the schema (checks, subject selection, streamed
+batches, whole columns); :func:`read_h5` is a shorthand for reading a whole
+file.
 
 Schema (one row per normalized or augmented sample; ETH-XGaze's ``.h5`` is
 the field's convention, this extends it with both eyes):
@@ -38,7 +42,8 @@ run never leaves a file that looks complete. ``--resume`` reopens the
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,14 +53,16 @@ from numpy.typing import NDArray
 
 from facemesh.conventions import pitchyaw_to_vector
 from facemesh.outputs import OutputExistsError
+from facemesh.types import FaceMeshError
 
 from .errors import GazeAugError
 from .normalize import NormalizedSample
 
-__all__ = ["H5Writer", "rows_from_samples", "part_path", "read_h5", "REQUIRED_KEYS"]
+__all__ = ["H5Writer", "H5TrainingSet", "rows_from_samples", "part_path", "read_h5", "REQUIRED_KEYS"]
 
 REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
 _CHUNK = 64
+_BLOCK = 2048  # rows read at once when streaming batches
 
 
 def part_path(path: str | Path) -> Path:
@@ -291,31 +298,200 @@ class H5Writer:
             self._f.close()
 
 
+@contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Turn what h5py raises on a damaged file into a GazeAugError naming it (our own errors pass)."""
+    try:
+        yield
+    except FaceMeshError:
+        raise
+    except (OSError, KeyError, IndexError, ValueError, TypeError, AttributeError, RuntimeError) as exc:
+        raise GazeAugError(f"{path}: a damaged training set ({exc.__class__.__name__}: {exc})") from exc
+
+
+def _decode_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """File attributes, the JSON ones (``settings``, ``skipped``) decoded; undecodable ones kept as text."""
+    out: dict[str, Any] = {}
+    for k, v in attrs.items():
+        if isinstance(v, str) and v[:1] in ("[", "{"):
+            try:
+                v = json.loads(v)
+            except json.JSONDecodeError:
+                pass
+        out[k] = v
+    return out
+
+
+def _check_schema(f: Any, path: Path) -> int:
+    """The checks every read makes; returns the number of rows N.
+
+    Required keys, the ``complete`` mark, eye patches (N, H, W, 3) alike, labels (N, 2) and finite,
+    every required key N rows long.
+    """
+    missing = [k for k in REQUIRED_KEYS if k not in f]
+    if missing:
+        raise GazeAugError(f"{path}: missing keys {missing} (not a gazeaug training set)")
+    if not bool(f.attrs.get("complete", False)):
+        raise GazeAugError(f"{path}: the run that wrote it did not finish (no 'complete' mark)")
+    n = int(f["left_eye"].shape[0])
+    eye_shape = f["left_eye"].shape[1:]
+    if len(eye_shape) != 3 or eye_shape[2] != 3 or f["right_eye"].shape != f["left_eye"].shape:
+        raise GazeAugError(f"{path}: eye patches must be (N, H, W, 3), got {f['left_eye'].shape}")
+    for k in ("head_pose", "gaze"):
+        if f[k].shape != (n, 2):
+            raise GazeAugError(f"{path}: {k} must be ({n}, 2), got {f[k].shape}")
+    for k in REQUIRED_KEYS:
+        _check_rows(f, path, k, n)
+    labels = np.concatenate([f["head_pose"][()], f["gaze"][()]], axis=1)
+    bad = ~np.isfinite(labels).all(axis=1)
+    if bad.any():
+        raise GazeAugError(f"{path}: {int(bad.sum())} rows have NaN or infinite labels (first: {int(np.argmax(bad))})")
+    return n
+
+
+def _check_rows(f: Any, path: Path, key: str, n: int) -> None:
+    if key not in f:
+        raise GazeAugError(f"{path}: missing key {key!r}")
+    rows = f[key].shape[0] if f[key].shape else 0
+    if rows != n:
+        raise GazeAugError(f"{path}: {key!r} has {rows} rows, left_eye {n}")
+
+
+class H5TrainingSet:
+    """The reader of the schema above: the rows of a training set, optionally of some subjects only.
+
+    Opening checks the schema (required keys, the ``complete`` mark, eye patch and label shapes,
+    finite labels) and the subject selection; :meth:`batches` streams the rows for training and
+    evaluation, :meth:`read` loads whole columns.
+
+    Args:
+        path: the ``.h5`` written by ``augment`` or ``normalize-dataset`` (:class:`H5Writer`).
+        subjects: keep only these subjects.
+        exclude_subjects: drop these subjects (leave-one-subject-out).
+        allow_empty: accept a set with no rows (to inspect it); training needs rows.
+
+    Attributes:
+        path: the file.
+        rows: (K,) int64, the file's row indices in use, increasing.
+        subjects: (N,) str, the subject of every row of the file.
+        patch_size_wh: eye patch (width, height), pixels.
+        attrs: the file attributes (``settings`` and ``skipped`` decoded from JSON).
+        settings: the run's parameters (``attrs["settings"]``; {} when absent).
+
+    Raises:
+        GazeAugError: unreadable or damaged file, unfinished run, missing keys, wrong shapes, NaN
+            labels, an unknown subject, no rows.
+    """
+
+    #: The columns :meth:`batches` yields.
+    KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject")
+
+    def __init__(
+        self,
+        path: str | Path,
+        subjects: Sequence[str] | None = None,
+        exclude_subjects: Sequence[str] | None = None,
+        *,
+        allow_empty: bool = False,
+    ):
+        h5py = _import_h5py()
+        self.path = Path(path)
+        try:
+            f = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise GazeAugError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
+        with f, _reading(self.path):
+            n = _check_schema(f, self.path)
+            eye_shape = f["left_eye"].shape[1:]
+            subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
+            self.attrs = _decode_attrs(f.attrs)
+        self._n = n
+        known = sorted(set(subj.tolist()))
+        unknown = sorted({str(x) for x in (*(subjects or ()), *(exclude_subjects or ()))} - set(known))
+        if unknown:
+            shown = ", ".join(known[:20]) + (f", ... ({len(known)} in all)" if len(known) > 20 else "")
+            raise GazeAugError(f"{self.path}: no subject {', '.join(unknown)} in this file; its subjects are {shown}")
+        keep = np.ones(n, dtype=bool)
+        if subjects is not None:
+            keep &= np.isin(subj, list(subjects))
+        if exclude_subjects is not None:
+            keep &= ~np.isin(subj, list(exclude_subjects))
+        self.rows = np.flatnonzero(keep)
+        if len(self.rows) == 0 and not allow_empty:
+            raise GazeAugError(f"{self.path}: no rows to use (after the subject selection)")
+        self.subjects = subj
+        self.patch_size_wh = (int(eye_shape[1]), int(eye_shape[0]))
+        settings = self.attrs.get("settings")
+        self.settings: dict[str, Any] = settings if isinstance(settings, dict) else {}
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def read(self, keys: Sequence[str] | None = None) -> dict[str, Any]:
+        """Whole columns of the rows in use, and the file attributes.
+
+        Args:
+            keys: the schema's keys to read (default: every per-row key; ``sources/`` is per input
+                sample, not per row, and is left out).
+
+        Returns:
+            ``{key: array (K, ...) with the schema's shape and dtype, ..., "attrs": self.attrs}``.
+
+        Raises:
+            GazeAugError: a key the file lacks, or of another length than ``left_eye``.
+        """
+        h5py = _import_h5py()
+        out: dict[str, Any] = {}
+        everything = len(self.rows) == self._n
+        with h5py.File(self.path, "r") as f, _reading(self.path):
+            for k in keys or [k for k in f.keys() if k != "sources"]:
+                _check_rows(f, self.path, k, self._n)
+                column = f[k][()]
+                out[k] = column if everything else column[self.rows]
+        out["attrs"] = dict(self.attrs)
+        return out
+
+    def batches(self, batch_size: int, rng: np.random.Generator | None = None) -> Iterator[dict[str, NDArray[Any]]]:
+        """Batches of the rows in use: :attr:`KEYS` as numpy arrays of B rows (the last batch may be shorter).
+
+        ``left_eye``, ``right_eye``: (B, H, W, 3) uint8 RGB; ``head_pose``, ``gaze``: (B, 2) float32,
+        (pitch, yaw) radians, face-centre normalized frame; ``subject``: (B,) str.
+
+        With ``rng``, blocks of rows come in a random order and are shuffled
+        within (streaming shuffle); without, in file order.
+        """
+        h5py = _import_h5py()
+        blocks = [self.rows[i : i + _BLOCK] for i in range(0, len(self.rows), _BLOCK)]
+        order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
+        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in self.KEYS}
+        carried = 0
+        with h5py.File(self.path, "r") as f:
+            for b in order:
+                idx = blocks[b]
+                lo, hi = int(idx[0]), int(idx[-1]) + 1
+                sel = idx - lo
+                data = {k: f[k][lo:hi][sel] for k in self.KEYS if k != "subject"}
+                data["subject"] = self.subjects[idx]
+                perm = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))
+                for k in self.KEYS:
+                    carry[k].append(data[k][perm])
+                carried += len(idx)
+                while carried >= batch_size:
+                    joined = {k: np.concatenate(v) for k, v in carry.items()}
+                    yield {k: v[:batch_size] for k, v in joined.items()}
+                    carry = {k: [v[batch_size:]] for k, v in joined.items()}
+                    carried -= batch_size
+        if carried:
+            yield {k: np.concatenate(v) for k, v in carry.items()}
+
+
 def read_h5(path: str | Path, keys: Sequence[str] | None = None) -> dict[str, Any]:
     """Read a training set (all of it, or ``keys``) with its attributes; checks the schema.
 
+    ``H5TrainingSet(path, allow_empty=True).read(keys)``: ``{key: array (N, ...), ..., "attrs": {...}}``.
+
     Raises:
-        GazeAugError: not HDF5, incomplete (no ``complete`` mark), missing keys or inconsistent lengths.
+        GazeAugError: not HDF5, incomplete (no ``complete`` mark), missing keys, wrong shapes,
+            NaN labels or inconsistent lengths.
     """
-    h5py = _import_h5py()
-    p = Path(path)
-    try:
-        f = h5py.File(p, "r")
-    except OSError as exc:
-        raise GazeAugError(f"{p}: not a readable HDF5 file ({exc})") from exc
-    with f:
-        missing = [k for k in REQUIRED_KEYS if k not in f]
-        if missing:
-            raise GazeAugError(f"{p}: missing keys {missing}")
-        if not bool(f.attrs.get("complete", False)):
-            raise GazeAugError(f"{p}: the run that wrote it did not finish (no 'complete' mark)")
-        n = f["left_eye"].shape[0]
-        out: dict[str, Any] = {}
-        for k in keys or [k for k in f.keys() if k != "sources"]:
-            if k not in f:
-                raise GazeAugError(f"{p}: missing key {k!r}")
-            if f[k].shape[0] != n:
-                raise GazeAugError(f"{p}: {k!r} has {f[k].shape[0]} rows, left_eye {n}")
-            out[k] = f[k][()]
-        out["attrs"] = {k: (json.loads(v) if isinstance(v, str) and v[:1] in "[{" else v) for k, v in f.attrs.items()}
-    return out
+    return H5TrainingSet(path, allow_empty=True).read(keys)

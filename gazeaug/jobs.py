@@ -66,8 +66,11 @@ class JobSettings:
             raise GazeAugError(f"kind: expected one of {KINDS}, got {self.kind!r}")
         if self.kind == "augment" and not (isinstance(self.per_sample, int) and self.per_sample >= 1):
             raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
-        if self.renderer not in ("raycast", "filament"):
-            raise GazeAugError(f"renderer: expected 'raycast' or 'filament', got {self.renderer!r}")
+        from .render import RENDERERS
+
+        usable = RENDERERS.names(benchmark_only=False)
+        if self.renderer not in usable:
+            raise GazeAugError(f"renderer: expected one of {usable}, got {self.renderer!r}")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form."""

@@ -18,7 +18,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from . import __version__
 from .errors import GazeAugError
+from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch
 from .models.preprocess import PREPROCESSING, prepare_inputs
 
@@ -42,7 +43,6 @@ __all__ = [
 ]
 
 MODEL_FORMAT = "gazeaug-model"
-_BLOCK = 2048
 _CKPT_KEYS = ("state_dict", "optimizer", "scheduler", "epoch", "settings", "data_selection", "log", "torch_rng")
 
 
@@ -91,106 +91,6 @@ def angular_errors_deg(
         angular_error_deg(pitchyaw_to_vector(np.asarray(pred_pitchyaw)), pitchyaw_to_vector(np.asarray(true_pitchyaw))),
         dtype=np.float64,
     )
-
-
-class H5TrainingSet:
-    """Rows of a training-set HDF5 file, optionally restricted to or excluding some subjects.
-
-    Args:
-        path: the ``.h5`` written by ``augment`` or ``normalize-dataset``.
-        subjects: keep only these subjects.
-        exclude_subjects: drop these subjects (leave-one-subject-out).
-
-    Raises:
-        GazeAugError: unreadable file, unfinished run, missing keys, wrong shapes, NaN labels, no rows.
-    """
-
-    KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject")
-
-    def __init__(
-        self, path: str | Path, subjects: Sequence[str] | None = None, exclude_subjects: Sequence[str] | None = None
-    ):
-        import h5py
-
-        self.path = Path(path)
-        try:
-            f = h5py.File(self.path, "r")
-        except OSError as exc:
-            raise GazeAugError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
-        with f:
-            missing = [k for k in self.KEYS if k not in f]
-            if missing:
-                raise GazeAugError(f"{self.path}: missing keys {missing} (not a gazeaug training set)")
-            if not bool(f.attrs.get("complete", False)):
-                raise GazeAugError(f"{self.path}: the run that wrote it did not finish (no 'complete' mark)")
-            n = f["left_eye"].shape[0]
-            eye_shape = f["left_eye"].shape[1:]
-            if len(eye_shape) != 3 or eye_shape[2] != 3 or f["right_eye"].shape != f["left_eye"].shape:
-                raise GazeAugError(f"{self.path}: eye patches must be (N, H, W, 3), got {f['left_eye'].shape}")
-            for k in ("head_pose", "gaze"):
-                if f[k].shape != (n, 2):
-                    raise GazeAugError(f"{self.path}: {k} must be ({n}, 2), got {f[k].shape}")
-            labels = np.concatenate([f["head_pose"][()], f["gaze"][()]], axis=1)
-            bad = ~np.isfinite(labels).all(axis=1)
-            if bad.any():
-                raise GazeAugError(
-                    f"{self.path}: {int(bad.sum())} rows have NaN or infinite labels (first: {int(np.argmax(bad))})"
-                )
-            subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]])
-            settings = f.attrs.get("settings", "{}")
-        known = sorted(set(subj.tolist()))
-        unknown = sorted({str(x) for x in (*(subjects or ()), *(exclude_subjects or ()))} - set(known))
-        if unknown:
-            shown = ", ".join(known[:20]) + (f", ... ({len(known)} in all)" if len(known) > 20 else "")
-            raise GazeAugError(f"{self.path}: no subject {', '.join(unknown)} in this file; its subjects are {shown}")
-        keep = np.ones(n, dtype=bool)
-        if subjects is not None:
-            keep &= np.isin(subj, list(subjects))
-        if exclude_subjects is not None:
-            keep &= ~np.isin(subj, list(exclude_subjects))
-        self.rows = np.flatnonzero(keep)
-        if len(self.rows) == 0:
-            raise GazeAugError(f"{self.path}: no rows to use (after the subject selection)")
-        self.subjects = subj
-        self.patch_size_wh = (int(eye_shape[1]), int(eye_shape[0]))
-        try:
-            self.settings = json.loads(settings) if isinstance(settings, str) else {}
-        except json.JSONDecodeError:
-            self.settings = {}
-
-    def __len__(self) -> int:
-        return len(self.rows)
-
-    def batches(self, batch_size: int, rng: np.random.Generator | None = None) -> Iterator[dict[str, NDArray[Any]]]:
-        """Batches of ``left_eye``, ``right_eye``, ``head_pose``, ``gaze``, ``subject`` (numpy).
-
-        With ``rng``, blocks of rows come in a random order and are shuffled
-        within (streaming shuffle); without, in file order.
-        """
-        import h5py
-
-        blocks = [self.rows[i : i + _BLOCK] for i in range(0, len(self.rows), _BLOCK)]
-        order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
-        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in self.KEYS}
-        carried = 0
-        with h5py.File(self.path, "r") as f:
-            for b in order:
-                idx = blocks[b]
-                lo, hi = int(idx[0]), int(idx[-1]) + 1
-                sel = idx - lo
-                data = {k: f[k][lo:hi][sel] for k in self.KEYS if k != "subject"}
-                data["subject"] = self.subjects[idx]
-                perm = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))
-                for k in self.KEYS:
-                    carry[k].append(data[k][perm])
-                carried += len(idx)
-                while carried >= batch_size:
-                    joined = {k: np.concatenate(v) for k, v in carry.items()}
-                    yield {k: v[:batch_size] for k, v in joined.items()}
-                    carry = {k: [v[batch_size:]] for k, v in joined.items()}
-                    carried -= batch_size
-        if carried:
-            yield {k: np.concatenate(v) for k, v in carry.items()}
 
 
 def _device(name: str) -> Any:

@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the gaze model needs torch (pip install 'gazeaug[train]')")
 
+from conftest import face_photo  # noqa: E402
 from helpers import synthetic_h5 as _synthetic_h5  # noqa: E402
 
 from gazeaug.cli import main  # noqa: E402
@@ -101,6 +102,48 @@ def test_bad_training_inputs(tmp_path):
         TrainSettings(epochs=0)
 
 
+def test_one_reader_of_the_training_set_schema(tmp_path):
+    import h5py
+
+    import gazeaug.io_h5 as io_h5
+    from gazeaug.io_h5 import read_h5
+
+    assert H5TrainingSet is io_h5.H5TrainingSet  # gazeaug.train re-exports the reader that lives beside the writer
+    path = _synthetic_h5(tmp_path / "t.h5", n=10)
+    with h5py.File(path, "r") as f:  # the truth, read without gazeaug
+        gaze, subject = f["gaze"][()], f["subject"][()]
+    b_rows = np.flatnonzero(subject == b"b")
+    np.testing.assert_array_equal(b_rows, [1, 3, 5, 7, 9])  # helpers.synthetic_h5 alternates subjects a, b
+    only_b = H5TrainingSet(path, subjects=["b"])
+    np.testing.assert_array_equal(only_b.rows, b_rows)
+    got = only_b.read(["gaze", "subject"])
+    np.testing.assert_array_equal(got["gaze"], gaze[b_rows])
+    assert set(got["subject"].tolist()) == {b"b"} and got["attrs"]["complete"]
+    assert got["attrs"]["settings"]["normalization"]["focal_px"] == 650.0
+    whole = read_h5(path)
+    np.testing.assert_array_equal(whole["gaze"], gaze)
+    assert "sources" not in whole and len(whole["left_eye"]) == 10
+    # the same checks whichever way a file is read
+    nan = _synthetic_h5(tmp_path / "nan.h5", nan_rows=2)
+    for read in (H5TrainingSet, read_h5):
+        with pytest.raises(GazeAugError, match="2 rows have NaN or infinite labels"):
+            read(nan)
+    with h5py.File(tmp_path / "short.h5", "w") as f:
+        f.attrs["complete"] = True
+        for k in io_h5.REQUIRED_KEYS:
+            f[k] = np.zeros((4, 36, 60, 3) if k.endswith("_eye") else (4, 2) if k in ("head_pose", "gaze") else (4,))
+        del f["source_index"]
+        f["source_index"] = np.arange(3)
+    for read in (H5TrainingSet, read_h5):
+        with pytest.raises(GazeAugError, match="'source_index' has 3 rows, left_eye 4"):
+            read(tmp_path / "short.h5")
+    with h5py.File(path, "a") as f:
+        f.attrs["complete"] = False
+    for read in (H5TrainingSet, read_h5):
+        with pytest.raises(GazeAugError, match="did not finish"):
+            read(path)
+
+
 def test_model_files_that_are_not_ours(tmp_path):
     (tmp_path / "x.pt").write_bytes(b"not a model")
     with pytest.raises(GazeAugError, match="not a gazeaug model .truncated, damaged or not a PyTorch file"):
@@ -135,21 +178,30 @@ def test_onnx_export_matches_pytorch(tmp_path):
     np.testing.assert_allclose(got, expected, atol=1e-4)
 
 
-def test_evaluate_predict_cli(tmp_path, shared_data, capsys):
+def _copy_photo(faces_dir, name, root):
+    """Copy photo ``name`` (without ../shared, the astronaut) into ``root``; its file name there and its (w, h)."""
+    import shutil
+
+    import cv2
+
+    src = face_photo(faces_dir, name, any_face=True)
+    dest = name if src.name == name else f"astronaut_for_{name}"
+    shutil.copy(src, root / dest)
+    h, w = cv2.imread(str(src)).shape[:2]
+    return dest, (w, h)
+
+
+def test_evaluate_predict_cli(tmp_path, faces_dir, capsys):
     from gazeaug.datasets import open_dataset
     from gazeaug.jobs import JobSettings, run_dataset
 
     # a real (tiny) augmented training set from two photos, evaluated on the raw photos and on an .h5
     root = tmp_path / "ds"
     root.mkdir()
-    import shutil
-
     rows = ["image,subject,fx,fy,cx,cy,target_x,target_y,target_z"]
     for i, name in enumerate(("astronaut.png", "sergey.png")):
-        shutil.copy(shared_data / "faces" / name, root / name)
-        rows.append(
-            f"{name},s{i},600,600,{(512 if i == 0 else 600) / 2 - 0.5},{(512 if i == 0 else 600) / 2 - 0.5},0,150,0"
-        )
+        file, (w, h) = _copy_photo(faces_dir, name, root)
+        rows.append(f"{file},s{i},600,600,{w / 2 - 0.5},{h / 2 - 0.5},0,150,0")
     (root / "labels.csv").write_text("\n".join(rows) + "\n")
     run_dataset(open_dataset(root), tmp_path / "aug.h5", JobSettings(per_sample=8), progress=False)
     # the test set also has an image without a face: counted and reported, not fatal
@@ -166,26 +218,26 @@ def test_evaluate_predict_cli(tmp_path, shared_data, capsys):
     assert (tmp_path / "ev" / "errors.csv").is_file() and (tmp_path / "ev" / "errors_hist.png").is_file()
     assert main(["evaluate", str(tmp_path / "m.pt"), str(tmp_path / "aug.h5"), "-o", str(tmp_path / "ev2")]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["count"] == 16
-    assert main(["predict", str(tmp_path / "m.pt"), str(root / "sergey.png"), "-o", str(tmp_path / "p.png")]) == 0
+    assert main(["predict", str(tmp_path / "m.pt"), str(root / file), "-o", str(tmp_path / "p.png")]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert len(out["gaze_vector_camera"]) == 3 and (tmp_path / "p.png").is_file()
-    assert main(["predict", str(tmp_path / "nothing.pt"), str(root / "sergey.png")]) == 2
+    assert main(["predict", str(tmp_path / "nothing.pt"), str(root / file)]) == 2
 
 
-def test_experiment_runs_end_to_end(tmp_path, shared_data, capsys):
-    import shutil
-
+def test_experiment_runs_end_to_end(tmp_path, faces_dir, capsys):
+    # train on astronaut and sergey, test on business-person (without ../shared, the astronaut throughout)
     for split, names in (("train", ("astronaut.png", "sergey.png")), ("test", ("business-person.png",))):
         root = tmp_path / split
         root.mkdir()
         rows = ["image,subject,fx,fy,cx,cy,target_x,target_y,target_z"]
         for i, name in enumerate(names):
-            shutil.copy(shared_data / "faces" / name, root / name)
-            rows.append(f"{name},s{i},1000,1000,300,300,0,150,0")
+            file, (w, h) = _copy_photo(faces_dir, name, root)
+            rows.append(f"{file},s{i},1000,1000,300,300,0,150,0")
         (root / "labels.csv").write_text("\n".join(rows) + "\n")
-    # the test photo is 958 x 1358: give it its own principal point through width/height-free intrinsics
+    # the test photo (business-person: 958 x 1358) gets its own principal point, width/height-free intrinsics
     (tmp_path / "test" / "labels.csv").write_text(
-        "image,subject,fx,fy,cx,cy,target_x,target_y,target_z\nbusiness-person.png,t0,1358,1358,478.5,678.5,0,150,0\n"
+        f"image,subject,fx,fy,cx,cy,target_x,target_y,target_z\n{file},t0,{max(w, h)},{max(w, h)},"
+        f"{w / 2 - 0.5},{h / 2 - 0.5},0,150,0\n"
     )
     out = tmp_path / "exp"
     args = ["experiment", "--train", str(tmp_path / "train"), "--test", str(tmp_path / "test"), "-o", str(out)]

@@ -1,5 +1,10 @@
 """Gaze models built by name: ``create_model("mobilenet_gaze")``; other architectures register themselves.
 
+The registry :data:`MODELS` (a :class:`gazeaug.registry.Registry`, the style
+renderers and dataset readers share) maps a name to its factory, or to
+``"package.module:factory"`` imported on first use, so listing the names needs
+no PyTorch.
+
 Every model takes the two normalized eye patches and the normalized head pose
 and predicts the gaze (pitch, yaw) in the face-centre normalized frame (the
 ``gaze`` of the HDF5 training sets). Inputs are prepared by
@@ -8,17 +13,18 @@ and predicts the gaze (pitch, yaw) in the face-centre normalized frame (the
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 from ..errors import GazeAugError
+from ..registry import Registry, Target
 
 __all__ = ["register_model", "create_model", "MODELS", "TORCH_INSTALL_HINT", "import_torch"]
 
 TORCH_INSTALL_HINT = "the gaze model needs PyTorch: pip install torch==2.13.0 (or pip install 'gazeaug[train]')"
 
-#: name -> factory(**options) returning a torch.nn.Module.
-MODELS: dict[str, Callable[..., Any]] = {}
+#: name -> factory(**options) returning a torch.nn.Module (imported when first used).
+MODELS = Registry("model", GazeAugError)
+MODELS.register("mobilenet_gaze", "gazeaug.models.mobilenet:mobilenet_gaze")
 
 
 def import_torch() -> Any:
@@ -30,20 +36,19 @@ def import_torch() -> Any:
     return torch
 
 
-def register_model(name: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Decorator: make a model factory available to :func:`create_model` under ``name``."""
+def register_model(name: str, target: Target | None = None) -> Any:
+    """Make a model factory available to :func:`create_model` under ``name``.
 
-    def deco(factory: Callable[..., Any]) -> Callable[..., Any]:
-        MODELS[name] = factory
-        return factory
-
-    return deco
+    Use as a decorator (``@register_model("name")``), or give ``target``: the factory or
+    ``"package.module:factory"`` (imported when the model is first created).
+    """
+    return MODELS.register(name, target)
 
 
 def create_model(name: str = "mobilenet_gaze", **options: Any) -> Any:
-    """Build a registered model (``torch.nn.Module``) by name."""
-    from . import mobilenet  # noqa: F401 - registers the built-in models
+    """Build a registered model (``torch.nn.Module``) by name.
 
-    if name not in MODELS:
-        raise GazeAugError(f"model: expected one of {sorted(MODELS)}, got {name!r}")
-    return MODELS[name](**options)
+    Raises:
+        GazeAugError: an unknown name (the message lists the registered ones).
+    """
+    return MODELS.create(name, **options)
