@@ -19,7 +19,7 @@ import numpy as np
 
 from .types import FaceMeshError
 
-__all__ = ["main", "build_parser", "error_line", "REMEDIES", "KEYPOINTS_HELP"]
+__all__ = ["main", "entry", "build_parser", "error_line", "REMEDIES", "KEYPOINTS_HELP"]
 
 
 #: How each command line phrases an error's ``remedy`` (:class:`facemesh.types.FaceMeshError`).
@@ -167,8 +167,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FaceMeshError, ImportError) as exc:
         print(f"facemesh: error: {error_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file we could not read or write: the system's reason, one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"facemesh: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print("\nfacemesh: interrupted; nothing was written (outputs are written whole or not at all)", file=sys.stderr)
+        print("facemesh: interrupted; nothing was written (outputs are written whole or not at all)", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
         if os.environ.get("GAZEAUG_DEBUG"):
@@ -324,5 +328,23 @@ def _cmd_model_export(args: argparse.Namespace) -> None:
 
 _COMMANDS.update(build=_cmd_build, info=_cmd_info, render=_cmd_render, model=_cmd_model_export)
 
+
+def entry() -> None:
+    """The console script: :func:`main`'s exit code; a Ctrl-C outside ``main``'s own handling is one line, 130.
+
+    Once ``main`` has returned, the work is done and its outputs are complete: a late
+    Ctrl-C (while the interpreter shuts down) is ignored rather than turned into 130.
+    """
+    import signal
+
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        print("facemesh: interrupted before it started; nothing was written", file=sys.stderr)
+        code = 130
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

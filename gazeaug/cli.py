@@ -20,7 +20,7 @@ import numpy as np
 
 from facemesh.cli import KEYPOINTS_HELP
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "entry", "build_parser"]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -38,6 +38,34 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+#: Upper bounds of counts that would only exhaust memory or processes: preview samples, worker processes.
+MAX_PREVIEW = 4096
+MAX_WORKERS = 256
+
+
+def _count(maximum: int) -> Any:
+    """Argparse type: an integer from 1 to ``maximum``."""
+
+    def parse(text: str) -> int:
+        value = _positive_int(text)
+        if value > maximum:
+            raise argparse.ArgumentTypeError(f"expected an integer from 1 to {maximum}, got {value}")
+        return value
+
+    return parse
+
+
+def _seed(text: str) -> int:
+    """Argparse type: a seed, an integer >= 0 (numpy's generators take no negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
     return value
 
 
@@ -83,8 +111,8 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
 
 def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
-    g.add_argument("--yaw-mean", type=_finite, default=0.0, help="degrees (default 0)")
-    g.add_argument("--pitch-mean", type=_finite, default=30.0, help="degrees; + = camera below the face (default 30)")
+    g.add_argument("--yaw-mean", type=_finite, default=None, help="degrees (default 0)")
+    g.add_argument("--pitch-mean", type=_finite, default=None, help="degrees; + = camera below the face (default 30)")
     g.add_argument("--yaw-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
     g.add_argument("--pitch-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
     g.add_argument("--yaw-std", type=_finite, default=None, help="standard deviation, deg (instead of --yaw-var)")
@@ -123,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--yaw", type=_finite, default=None, help="head yaw, degrees (with --pitch)")
     r.add_argument("--pitch", type=_finite, default=None, help="head pitch, degrees (with --yaw)")
     r.add_argument("--original-pose", action="store_true", help="keep the detected head pose")
-    r.add_argument("--seed", type=int, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
+    r.add_argument("--seed", type=_seed, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
     r.add_argument(
         "--distance-to-camera", type=_finite, default=None, help="head distance in mm (default: the photo's)"
     )
@@ -136,8 +164,13 @@ def build_parser() -> argparse.ArgumentParser:
     pv = sub.add_parser("preview", help="contact sheet of augmented eye patches and a plot of their distributions")
     pv.add_argument("input", nargs="?", type=Path, help="face image or .glb (default: the built-in sample)")
     pv.add_argument("-o", "--output", type=Path, required=True, help="contact sheet .png (the plot goes beside it)")
-    pv.add_argument("-n", type=_positive_int, default=16, help="number of augmented samples (default 16)")
-    pv.add_argument("--seed", type=int, default=0)
+    pv.add_argument(
+        "-n",
+        type=_count(MAX_PREVIEW),
+        default=16,
+        help=f"number of augmented samples (default 16, at most {MAX_PREVIEW})",
+    )
+    pv.add_argument("--seed", type=_seed, default=0)
     pv.add_argument("--renderer", choices=renderers, default="raycast")
     _add_input_options(pv)
     _add_gaze_options(pv)
@@ -152,8 +185,10 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("dataset", type=Path, help="the dataset's root folder")
         a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
         a.add_argument("--format", choices=formats, help=format_help)
-        a.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
-        a.add_argument("--seed", type=int, default=0)
+        a.add_argument(
+            "--workers", type=_count(MAX_WORKERS), default=1, help=f"processes (default 1, at most {MAX_WORKERS})"
+        )
+        a.add_argument("--seed", type=_seed, default=0)
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
         a.add_argument("--overwrite", action="store_true", help="replace an existing complete OUT.h5")
         a.add_argument("--limit", type=_positive_int, default=None, help="only the first N samples")
@@ -175,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--epochs", type=_positive_int, default=10)
     t.add_argument("--batch-size", type=_positive_int, default=256)
     t.add_argument("--lr", type=_finite, default=1e-3)
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=_seed, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     t.add_argument("--model", choices=MODELS.names(), default="mobilenet_gaze", help="registered model name")
     t.add_argument("--resume", action="store_true", help="continue from the model's checkpoint")
@@ -203,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--faces", type=Path, nargs="*", default=None, help="face photos (default: the built-in sample)")
     sm.add_argument("--rig", default="screen", help="'screen', 'wheelchair' or a RIG.yaml (default screen)")
     sm.add_argument("--per-face", type=_positive_int, default=10, help="images per face (default 10)")
-    sm.add_argument("--seed", type=int, default=0)
+    sm.add_argument("--seed", type=_seed, default=0)
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing dataset folder that simulate wrote")
     sm.add_argument("--quiet", action="store_true")
@@ -220,8 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--epochs", type=_positive_int, default=10)
     xp.add_argument("--batch-size", type=_positive_int, default=256)
     xp.add_argument("--lr", type=_finite, default=1e-3)
-    xp.add_argument("--seed", type=int, default=0)
-    xp.add_argument("--workers", type=_positive_int, default=1)
+    xp.add_argument("--seed", type=_seed, default=0)
+    xp.add_argument("--workers", type=_count(MAX_WORKERS), default=1)
     xp.add_argument("--quiet", action="store_true")
     _add_distribution_options(xp)
 
@@ -234,8 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--per-face", type=_positive_int, default=16, help="samples per face before a new face (default 16)"
     )
     br.add_argument("--faces", type=Path, nargs="*", default=None, help="face images (default: the built-in sample)")
-    br.add_argument("--seed", type=int, default=0)
-    br.add_argument("--workers", type=_positive_int, default=1, help="processes (default 1)")
+    br.add_argument("--seed", type=_seed, default=0)
+    br.add_argument(
+        "--workers", type=_count(MAX_WORKERS), default=1, help=f"processes (default 1, at most {MAX_WORKERS})"
+    )
     br.add_argument("--batch", type=_positive_int, default=16, help="samples per render call (default 16)")
     return parser
 
@@ -255,7 +292,14 @@ def _distribution(args: argparse.Namespace) -> Any:
     from .errors import GazeAugError
     from .sampling import HeadPoseDistribution, load_rig
 
+    given = [
+        f"--{name.replace('_', '-')}"
+        for name in ("yaw_mean", "pitch_mean", "yaw_var", "pitch_var", "yaw_std", "pitch_std")
+        if getattr(args, name) is not None
+    ]
     if args.rig is not None:
+        if given:
+            raise GazeAugError(f"--rig sets the head-pose distribution; give it or {', '.join(given)}, not both")
         return load_rig(args.rig).distribution()
     for axis in ("yaw", "pitch"):
         if getattr(args, f"{axis}_var") is not None and getattr(args, f"{axis}_std") is not None:
@@ -268,7 +312,9 @@ def _distribution(args: argparse.Namespace) -> Any:
                 raise GazeAugError(f"--{axis}-std must be finite and >= 0, got {s}")
             v = s * s
         var.append(10.0 if v is None else v)
-    return HeadPoseDistribution.from_variance(args.yaw_mean, args.pitch_mean, var[0], var[1])
+    yaw_mean = 0.0 if args.yaw_mean is None else args.yaw_mean
+    pitch_mean = 30.0 if args.pitch_mean is None else args.pitch_mean
+    return HeadPoseDistribution.from_variance(yaw_mean, pitch_mean, var[0], var[1])
 
 
 def _fit_input(args: argparse.Namespace, path: Path | None) -> Any:
@@ -429,14 +475,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
     from .datasets import open_dataset
-    from .errors import GazeAugError
     from .jobs import JobSettings, run_dataset
     from .sampling import load_rig
 
-    if args.workers < 1:
-        raise GazeAugError(f"--workers: expected >= 1, got {args.workers}")
-    reader = open_dataset(args.dataset, args.format)
-    if args.command == "augment":
+    if args.command == "augment":  # the options first, then the data
         settings = JobSettings(
             kind="augment",
             per_sample=args.per_sample,
@@ -448,6 +490,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
         )
     else:
         settings = JobSettings(kind="normalize-dataset", seed=args.seed, normalization=_settings(args))
+    reader = open_dataset(args.dataset, args.format)
     summary = run_dataset(
         reader,
         args.output,
@@ -572,13 +615,18 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
     if (args.train is None) != (args.test is None):
         raise GazeAugError("give both --train and --test, or neither (the built-in simulated setup)")
+    distribution = _distribution(args)  # a bad rig or distribution is refused before minutes of work
     if args.train is None:
+        from facemesh.io import load_image_rgb
+
+        for face in args.faces or []:
+            load_image_rgb(face)  # every photo readable before the simulation starts
         args.train, args.test = simulated_setup(
             args.output, extra_faces=args.faces or [], large=args.large, seed=args.seed, progress=not args.quiet
         )
     settings = ExperimentSettings(
         per_sample=args.per_sample,
-        distribution=_distribution(args),
+        distribution=distribution,
         train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed),
         workers=args.workers,
         seed=args.seed,
@@ -624,10 +672,15 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_file(out, (".npz",), what="eye patches file")
     elif cmd == "preview":
         check_output_file(out, (".png",), what="contact sheet")
+        check_output_file(out.with_name(out.stem + "_distribution.png"), what="distribution plot")
     elif cmd in ("augment", "normalize-dataset"):
         check_output_file(out, (".h5", ".hdf5"), what="training set")
+        for suffix in (".h5.part", ".summary.json", ".distribution.png"):
+            check_output_file(out.with_suffix(suffix), what="file beside the training set")
     elif cmd == "train":
         check_output_file(out, (".pt",), what="model file")
+        for suffix in (".ckpt.pt", ".log.csv", ".curves.png"):
+            check_output_file(out.with_suffix(suffix), what="file beside the model")
     elif cmd == "export":
         check_output_file(out, (".onnx",), what="ONNX file")
     elif cmd == "predict":
@@ -680,11 +733,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _show
             _check_outputs(args)
             return _COMMANDS[args.command](args)
-    except (FaceMeshError, ImportError, FileNotFoundError) as exc:
+    except (FaceMeshError, ImportError) as exc:
         print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file we could not read or write: the system's reason, one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"\n{prog}: interrupted; {_interrupted(args)}", file=sys.stderr)
+        print(f"{prog}: interrupted; {_interrupted(args)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
         if os.environ.get("GAZEAUG_DEBUG"):
@@ -694,5 +751,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
+def entry() -> None:
+    """The console script: :func:`main`'s exit code; a Ctrl-C outside ``main``'s own handling is one line, 130.
+
+    Once ``main`` has returned, the work is done and its outputs are complete: a late
+    Ctrl-C (while the interpreter shuts down) is ignored rather than turned into 130.
+    """
+    import signal
+
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        print("gazeaug: interrupted before it started; nothing was written", file=sys.stderr)
+        code = 130
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -41,6 +41,7 @@ run never leaves a file that looks complete. ``--resume`` reopens the
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -128,6 +129,19 @@ _DTYPES: dict[str, Any] = {
 }
 
 
+def _differences(what: str, then_json: Any, now_json: str) -> list[str]:
+    """What differs between two JSON objects recorded in a file (``"what.key: THEN then, NOW now"``)."""
+    try:
+        then = json.loads(then_json) if isinstance(then_json, str) else {}
+    except json.JSONDecodeError:
+        then = {}
+    now = json.loads(now_json)
+    if not isinstance(then, dict):
+        then = {}
+    keys = sorted(set(then) | set(now))
+    return [f"{what}.{k}: {then.get(k)!r} then, {now.get(k)!r} now" for k in keys if then.get(k) != now.get(k)]
+
+
 def _import_h5py() -> Any:
     try:
         import h5py  # noqa: PLC0415
@@ -168,6 +182,8 @@ class H5Writer:
         if self.path.exists() and not overwrite:
             raise OutputExistsError(f"{self.path} exists and is complete", remedy="overwrite")
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
+        selection = json.dumps(attrs.get("selection", {}), sort_keys=True)
+        self.created = False  # True when this run made the .part file (see :meth:`discard`)
         self.skipped: list[dict[str, Any]] = []
         self._pending: list[Rows] = []
         self._pending_sources: list[tuple[int, NDArray[np.float32]]] = []
@@ -179,10 +195,16 @@ class H5Writer:
                 raise GazeAugError(
                     f"{self.part}: cannot reopen the interrupted run ({exc}); delete it to start over"
                 ) from exc
-            old = self._f.attrs.get("settings", "{}")
-            if old != settings:
+            changed = [
+                *_differences("settings", self._f.attrs.get("settings", "{}"), settings),
+                *_differences("data", self._f.attrs.get("selection", "{}"), selection),
+            ]
+            if changed:
                 self._f.close()
-                raise GazeAugError(f"{self.part} was written with other settings", remedy="same_settings")
+                raise GazeAugError(
+                    f"{self.part} was written with other settings or data ({'; '.join(changed)})",
+                    remedy="same_settings",
+                )
             done = int(self._f.attrs.get("rows_done", 0))
             for k in _DTYPES:
                 self._f[k].resize(done, axis=0)
@@ -198,6 +220,7 @@ class H5Writer:
                 )
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.part, "w")
+            self.created = True
             w, h = patch_size_wh
             shapes = {
                 "left_eye": (h, w, 3),
@@ -290,6 +313,16 @@ class H5Writer:
         self.flush()
         self._f.close()
         os.replace(self.part, self.path)
+
+    def discard(self) -> None:
+        """Close and remove the ``.part`` file if this run created it (a run that failed, not one interrupted)."""
+        import os
+
+        if self._f.id.valid:
+            self._f.close()
+        if self.created:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.part)
 
     def close(self) -> None:
         """Close without finishing (the ``.part`` file stays for ``--resume``)."""

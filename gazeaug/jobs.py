@@ -319,6 +319,13 @@ def run_dataset(
         "dataset": str(getattr(reader, "root", "")),
         "dataset_format": reader.name,
         "settings": settings.as_dict(),
+        # what is read: a resumed run must read the same (the same dataset, samples and limit)
+        "selection": {
+            "dataset": str(Path(str(getattr(reader, "root", ""))).resolve()),
+            "format": reader.name,
+            "dataset_samples": len(reader),
+            "samples": total,
+        },
     }
     with output_lock(out):  # held for the whole run: a second run is told this one is writing
         writer = H5Writer(out, attrs, settings.normalization.patch_size_wh, resume=resume, overwrite=overwrite)
@@ -344,8 +351,13 @@ def run_dataset(
                     bar.update(1)
                 if n % flush_every == 0:
                     writer.flush()
+        except KeyboardInterrupt:
+            writer.close()  # the .part stays for --resume
+            if bar is not None:
+                bar.close()
+            raise
         except BaseException:
-            writer.close()
+            writer.discard()  # a failed run (bad dataset file...) leaves nothing to resume that it made
             if bar is not None:
                 bar.close()
             raise

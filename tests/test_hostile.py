@@ -664,3 +664,148 @@ def test_library_render_refuses_a_non_finite_turn():
     turned = (v - v.mean(0)) @ rotation_from_yaw_pitch(np.nan, 0.0).T
     with pytest.raises(InputError, match="NaN or infinite"):
         RaycastScene(turned, tri, uv, tex)
+
+
+# --------------------------------------------------------------------------------------------
+# Second hostile round: resume of other data, failed runs, side outputs, bounds, clashes
+# --------------------------------------------------------------------------------------------
+
+
+def _interrupted_part(tmp_path, ds, out, extra=()):
+    """A .part left by an interrupted run (KeyboardInterrupt after the first sample)."""
+    from gazeaug.datasets import open_dataset
+    from gazeaug.jobs import JobSettings, run_dataset
+
+    class Interrupting:
+        def __init__(self, reader):
+            self.reader, self.name, self.root = reader, reader.name, reader.root
+
+        def __len__(self):
+            return len(self.reader)
+
+        def __iter__(self):
+            for i, s in enumerate(self.reader):
+                if i == 1:
+                    raise KeyboardInterrupt
+                yield s
+
+    with pytest.raises(KeyboardInterrupt):
+        run_dataset(
+            Interrupting(open_dataset(ds)),
+            out,
+            JobSettings(kind="normalize-dataset"),
+            progress=False,
+            flush_every=1,
+            **dict(extra),
+        )
+
+
+def test_resume_refuses_another_dataset_or_limit(tmp_path, capsys, sample_jpg):
+    from gazeaug.io_h5 import part_path
+
+    ds = _folder_dataset(tmp_path / "ds", sample_jpg, n=3)
+    other = _folder_dataset(tmp_path / "other", sample_jpg, n=3)
+    out = tmp_path / "n.h5"
+    _interrupted_part(tmp_path, ds, out)
+    before = part_path(out).read_bytes()
+    for argv, phrase in (
+        (["normalize-dataset", other, "-o", out, "--resume", "--quiet"], "data.dataset"),
+        (["normalize-dataset", ds, "-o", out, "--resume", "--quiet", "--limit", "2"], "data.samples"),
+    ):
+        code, _, err = _gazeaug(argv, capsys)
+        assert code == 2, err
+        _one_line(err, "other settings or data", phrase, "resume with the same options")
+        assert part_path(out).read_bytes() == before and not out.exists()
+    code, _, err = _gazeaug(["normalize-dataset", ds, "-o", out, "--resume", "--quiet"], capsys)
+    assert code == 0, err
+
+
+def test_a_failed_run_leaves_nothing_to_resume(tmp_path, capsys, sample_jpg):
+    ds = _folder_dataset(tmp_path / "ds", sample_jpg, n=3)
+    lines = (ds / "labels.csv").read_text().splitlines()
+    lines[3] = lines[3].replace(",600,600,", ",nan,600,", 1)  # the third sample's focal length
+    (ds / "labels.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "n.h5"
+    code, _, err = _gazeaug(["normalize-dataset", ds, "-o", out, "--quiet"], capsys)
+    assert code == 2
+    _one_line(err, "line 4", "fx")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"], "a failed run is not an interrupted one"
+
+
+@pytest.mark.parametrize(
+    "argv, side",
+    [
+        (["train", "{h5}", "-o", "{tmp}/side.pt", "--quiet"], "side.curves.png"),
+        (["train", "{h5}", "-o", "{tmp}/side.pt", "--quiet"], "side.ckpt.pt"),
+        (["normalize-dataset", "{ds}", "-o", "{tmp}/side.h5", "--quiet"], "side.summary.json"),
+        (["preview", "-o", "{tmp}/sh.png"], "sh_distribution.png"),
+    ],
+)
+def test_files_beside_the_output_are_checked_before_work(tmp_path, capsys, sample_jpg, argv, side):
+    (tmp_path / side).mkdir()
+    ds = _folder_dataset(tmp_path / "ds", sample_jpg, n=1)
+    argv = [a.format(tmp=tmp_path, h5=tmp_path / "missing.h5", ds=ds) for a in argv]
+    code, _, err = _gazeaug(argv, capsys)
+    assert code == 2
+    _one_line(err, side, "is a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["ds", side])
+
+
+@pytest.mark.parametrize(
+    "argv, phrase",
+    [
+        (["render", "-o", "{tmp}/r.npz", "--seed", "-1"], "expected an integer >= 0"),
+        (["preview", "-o", "{tmp}/p.png", "-n", "1000000000"], "expected an integer from 1 to"),
+        (["augment", "{tmp}", "-o", "{tmp}/a.h5", "--workers", "100000"], "expected an integer from 1 to"),
+        (["render", "-o", "{tmp}/r.npz", "--rig", "wheelchair", "--pitch-mean", "80"], "not both"),
+        (["augment", "{tmp}", "-o", "{tmp}/a.h5", "--rig", "wheelchair", "--yaw-std", "3"], "not both"),
+    ],
+)
+def test_options_out_of_bounds_or_clashing(tmp_path, capsys, argv, phrase):
+    code, _, err = _gazeaug([a.format(tmp=tmp_path) for a in argv], capsys)
+    assert code == 2
+    _one_line(err, phrase)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_experiment_checks_its_photos_before_simulating(tmp_path, capsys):
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(b"not a picture")
+    t0 = time.perf_counter()
+    code, _, err = _gazeaug(["experiment", "-o", tmp_path / "xp", "--faces", bad, "--quiet"], capsys)
+    assert code == 2
+    _one_line(err, "bad.jpg")
+    assert not (tmp_path / "xp").exists() and time.perf_counter() - t0 < 10
+
+
+@pytest.mark.parametrize("prog", ["facemesh", "gazeaug"])
+def test_a_ctrl_c_outside_main_is_one_line_and_130(monkeypatch, capsys, prog):
+    import importlib
+    import signal as signal_module
+
+    cli = importlib.import_module(f"{prog}.cli")
+
+    def interrupted(argv=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "main", interrupted)
+    old = signal_module.getsignal(signal_module.SIGINT)
+    try:
+        with pytest.raises(SystemExit) as exc:
+            cli.entry()
+        assert exc.value.code == 130
+        _one_line(capsys.readouterr().err, "interrupted")
+        assert signal_module.getsignal(signal_module.SIGINT) == signal_module.SIG_IGN  # a late Ctrl-C is ignored
+    finally:
+        signal_module.signal(signal_module.SIGINT, old)
+
+
+def test_unreadable_inputs_exit_2(tmp_path):
+    prefix = _unprivileged()
+    secret = tmp_path / "secret.glb"
+    secret.write_bytes(b"glTF")
+    os.chmod(secret, 0)
+    for prog, argv in (("facemesh", ["info", secret]), ("gazeaug", ["normalize", secret, "-o", tmp_path / "n.npz"])):
+        res = subprocess.run([*prefix, str(BIN / prog), *map(str, argv)], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 2, res.stderr
+        _one_line(res.stderr, "secret.glb")
