@@ -188,6 +188,7 @@ class H5Writer:
         self._pending: list[Rows] = []
         self._pending_sources: list[tuple[int, NDArray[np.float32]]] = []
         self.next_source_index = 0
+        self._rows_written = self._sources_written = 0  # rows / sources in the file after the last write
         if self.part.exists() and resume:
             try:
                 self._f = h5py.File(self.part, "a")
@@ -211,6 +212,7 @@ class H5Writer:
             sources = int(self._f.attrs.get("sources_done", 0))
             for k in ("sources/index", "sources/labels"):
                 self._f[k].resize(sources, axis=0)
+            self._rows_written, self._sources_written = done, sources
             self.next_source_index = int(self._f.attrs.get("next_source_index", 0))
             self.skipped = json.loads(self._f.attrs.get("skipped", "[]"))
         else:
@@ -261,7 +263,7 @@ class H5Writer:
     @property
     def rows_done(self) -> int:
         """Rows written so far (buffered rows included)."""
-        return int(self._f["left_eye"].shape[0]) + sum(len(r) for r in self._pending)
+        return self._rows_written + sum(len(r) for r in self._pending)
 
     def append(self, rows: Rows | None, source_index: int, skipped: Mapping[str, Any] | None = None) -> None:
         """Append the rows of one source sample (or record it as skipped) and advance the resume point.
@@ -279,27 +281,35 @@ class H5Writer:
         self._pending_sources.append((source_index, np.asarray(labels, dtype=np.float32)))
 
     def _write_pending(self) -> None:
+        """Write the buffered rows after the last rows known written.
+
+        Idempotent: the start row is the count of rows written by a *completed* call, not the
+        datasets' current length, so a call interrupted half-way (Ctrl-C between two keys)
+        and called again writes the same rows at the same place instead of appending them twice.
+        """
         if self._pending:
-            n0 = int(self._f["left_eye"].shape[0])
+            n0 = self._rows_written
             n1 = n0 + sum(len(r) for r in self._pending)
             for k, dt in _DTYPES.items():
                 ds = self._f[k]
                 ds.resize(n1, axis=0)
                 ds[n0:n1] = np.concatenate([np.asarray(r.arrays[k], dtype=dt) for r in self._pending])
+            self._rows_written = n1
             self._pending = []
         if self._pending_sources:
-            n0 = int(self._f["sources/index"].shape[0])
+            n0 = self._sources_written
             n1 = n0 + len(self._pending_sources)
             self._f["sources/index"].resize(n1, axis=0)
             self._f["sources/index"][n0:n1] = [i for i, _ in self._pending_sources]
             self._f["sources/labels"].resize(n1, axis=0)
             self._f["sources/labels"][n0:n1] = np.stack([lab for _, lab in self._pending_sources])
+            self._sources_written = n1
             self._pending_sources = []
 
     def flush(self) -> None:
         """Write the buffered rows and make them durable: the resume point moves only here."""
         self._write_pending()
-        self._f.attrs["sources_done"] = int(self._f["sources/index"].shape[0])
+        self._f.attrs["sources_done"] = self._sources_written
         self._f.attrs["rows_done"] = self.rows_done
         self._f.attrs["next_source_index"] = self.next_source_index
         self._f.attrs["skipped"] = json.dumps(self.skipped)

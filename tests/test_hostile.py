@@ -809,3 +809,37 @@ def test_unreadable_inputs_exit_2(tmp_path):
         res = subprocess.run([*prefix, str(BIN / prog), *map(str, argv)], capture_output=True, text=True, timeout=120)
         assert res.returncode == 2, res.stderr
         _one_line(res.stderr, "secret.glb")
+
+
+def test_a_flush_interrupted_half_way_writes_no_row_twice(tmp_path):
+    """Ctrl-C between two keys of a flush, then the close that follows: each row once (was: 216 of 200)."""
+    from helpers import synthetic_h5
+
+    from gazeaug.io_h5 import H5TrainingSet, H5Writer, Rows, part_path
+
+    src = H5TrainingSet(synthetic_h5(tmp_path / "src.h5", n=8)).read()
+    rows = Rows({k: v for k, v in src.items() if k != "attrs"})
+    out = tmp_path / "o.h5"
+    w = H5Writer(out, {"settings": {"x": 1}}, (60, 36))
+    w.append(rows, 0)
+    calls = {"n": 0}
+    real = w._f.__class__.__getitem__
+
+    def interrupt_on_third_key(f, key):  # the third dataset touched during the flush
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(f, key)
+
+    w._f.__class__.__getitem__ = interrupt_on_third_key
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            w.flush()
+    finally:
+        w._f.__class__.__getitem__ = real
+    w.close()  # what run_dataset does on Ctrl-C
+    import h5py
+
+    with h5py.File(part_path(out), "r") as f:
+        assert f["left_eye"].shape[0] == 8 and f["gaze"].shape[0] == 8 and int(f.attrs["rows_done"]) == 8
+        np.testing.assert_array_equal(f["source_index"][()], src["source_index"])
