@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -64,6 +65,34 @@ def face_photo(faces_dir: Path, name: str, *, any_face: bool = False) -> Path:
 
 
 @pytest.fixture(scope="session")
+def two_faces_photo(faces_dir, tmp_path_factory) -> Path:
+    """A photo with two faces of different sizes: two_children.jpeg, or without ../shared two astronauts.
+
+    The stand-in: the built-in photo's face (a 220 px square around it) beside a 0.7x copy, on grey,
+    as PNG (MediaPipe's detector misses the astronaut's face in a larger frame or after JPEG coding).
+    """
+    path = faces_dir / "two_children.jpeg"
+    if path.is_file():
+        return path
+    if os.environ.get("CI"):
+        _missing_shared("faces/two_children.jpeg")
+    import cv2
+
+    from facemesh.build import sample_image
+    from facemesh.io import save_image_rgb
+
+    face = sample_image()[14:234, 114:334]  # the face spans about x 178-270, y 71-177
+    small = cv2.resize(face, None, fx=0.7, fy=0.7, interpolation=cv2.INTER_AREA)
+    canvas = np.full((220, 220 + small.shape[1], 3), 128, np.uint8)
+    canvas[:, :220] = face
+    top = (220 - small.shape[0]) // 2
+    canvas[top : top + small.shape[0], 220:] = small
+    path = tmp_path_factory.mktemp("two_faces") / "two_astronauts.png"
+    save_image_rgb(path, canvas)
+    return path
+
+
+@pytest.fixture(scope="session")
 def reference_model_path(shared_data: Path) -> Path:
     path = shared_data / "reference" / "mediapipe_face_geometry" / "canonical_face_model.obj"
     if not path.is_file():
@@ -72,13 +101,36 @@ def reference_model_path(shared_data: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def face_model_obj(tmp_path_factory) -> Path:
+    """A face-model OBJ file: MediaPipe's canonical_face_model.obj of ../shared, or the built-in model exported.
+
+    For tests that need *a* face model file; comparisons with MediaPipe's reference ask for
+    :func:`reference_model_path`.
+    """
+    shared = shared_data_dir()
+    if shared is not None:
+        path = shared / "reference" / "mediapipe_face_geometry" / "canonical_face_model.obj"
+        if not path.is_file():
+            pytest.fail(f"{path} not found in ../shared/data")
+        return path
+    if os.environ.get("CI"):
+        _missing_shared("canonical_face_model.obj")
+    from facemesh.face_models import builtin_face_model, export_obj
+
+    path = tmp_path_factory.mktemp("face_model") / "builtin_face_model.obj"
+    path.write_text(export_obj(builtin_face_model()))
+    return path
+
+
+@pytest.fixture(scope="session")
 def mpii_sample(tmp_path_factory, detector) -> Path:
     """The real MPIIFaceGaze p00 frame of ../shared, or without it a synthetic one in the same layout.
 
-    The synthetic sample (tests/helpers.py: ``synthetic_mpii_sample``) is the built-in photo on a
-    1280 x 720 canvas with a synthetic calibration, the built-in model's six key points as
-    ``faceModelGeneric.txt`` and MediaPipe's landmarks at them. Tests of the real frame's own
-    numbers ask for :func:`real_mpii_sample` instead.
+    The synthetic sample (tests/helpers.py: ``synthetic_mpii_sample``) is the built-in 512 x 512
+    photo as PNG with a synthetic calibration, the built-in model's six key points as
+    ``faceModelGeneric.txt`` and MediaPipe's landmarks at them. Its sizes come from its
+    ``annotation.json`` like the real frame's; ``helpers.is_synthetic`` tells the two apart. Tests
+    of the real frame's own numbers ask for :func:`real_mpii_sample` instead.
     """
     shared = shared_data_dir()
     if shared is not None:

@@ -82,6 +82,13 @@ def expect_typed_error(load, path: Path, data: bytes):
         pytest.fail(f"{path.name} with {data[:40]!r}...: {exc.__class__.__name__}: {exc}")
 
 
+def is_synthetic(sample: Path) -> bool:
+    """Whether an ``mpii_sample`` folder is :func:`synthetic_mpii_sample`'s stand-in, not the real p00 frame."""
+    import json
+
+    return json.loads((sample / "annotation.json").read_text())["source"].startswith("synthetic")
+
+
 def synthetic_mpii_sample(folder: Path, detector) -> Path:
     """A stand-in for ../shared's MPIIFaceGaze p00 frame, in its exact layout, made from the built-in photo.
 

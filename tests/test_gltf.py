@@ -20,6 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from conftest import face_photo
 
 from facemesh.gltf import gltf_bytes, load_glb, save_glb
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, HeadPose, InputError
@@ -480,7 +481,7 @@ def test_khronos_validator(tmp_path: Path, case: str) -> None:
     assert issues["numWarnings"] == 0, problems
 
 
-def test_atlas_keeps_landmark_order_and_renders_alike(tmp_path: Path, shared_data: Path) -> None:
+def test_atlas_keeps_landmark_order_and_renders_alike(tmp_path: Path, faces_dir: Path) -> None:
     """--atlas: vertex i < N is still landmark i, seam copies are appended, the view barely changes."""
     from facemesh.atlas import atlas_mesh
     from facemesh.build import build_mesh
@@ -489,7 +490,7 @@ def test_atlas_keeps_landmark_order_and_renders_alike(tmp_path: Path, shared_dat
     from facemesh.landmarks import MediaPipeFaceMesh
     from facemesh.render import RaycastScene
 
-    img = load_image_rgb(shared_data / "faces" / "sergey.png")
+    img = load_image_rgb(face_photo(faces_dir, "sergey.png", any_face=True))
     h, w = img.shape[:2]
     cam = camera_for_image(None, w, h, warn=False)
     with MediaPipeFaceMesh() as det:

@@ -42,8 +42,8 @@ def test_mediapipe_matches_its_own_expected_landmarks(shared_data, detector):
     assert err.mean() <= 3.0 and err.max() <= 8.0, (err.mean(), err.max())
 
 
-def test_several_faces_largest_first_and_face_index(shared_data, detector):
-    img = load_image_rgb(shared_data / "faces" / "two_children.jpeg")
+def test_several_faces_largest_first_and_face_index(two_faces_photo, detector):
+    img = load_image_rgb(two_faces_photo)
     faces = detector.detect(img)
     assert len(faces) == 2
     first, second = select_face(faces, 0), select_face(faces, 1)

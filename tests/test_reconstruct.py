@@ -4,8 +4,10 @@ Expected values come from the geometry of hand-made meshes or from
 independent re-implementations of each property in this file (edge counts,
 fans, components, projected coverage), never from the module's own output.
 
-Real face points come from the shared data folder (``$GAZEAUG_SHARED_DATA``,
-default ``/work/shared/data``); those tests are skipped when it is absent.
+Real face points come from the shared data folder (``../shared/data`` or
+``$GAZEAUG_SHARED_DATA``): MediaPipe's canonical face, or without that folder the
+built-in face model's 468 points (the same landmarks, within 7 mm RMS of it); ETH-XGaze's
+50 points, whose tests are skipped without it (and fail under CI, see conftest.py).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import _missing_shared, shared_data_dir
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -39,7 +42,11 @@ FOCAL_PX = 1000.0
 
 
 def _data_dir() -> Path:
-    return Path(os.environ.get("GAZEAUG_SHARED_DATA", "/work/shared/data"))
+    path = shared_data_dir()
+    if path is None:
+        _missing_shared("reconstruct")
+    assert path is not None
+    return path
 
 
 def _require(path: Path) -> Path:
@@ -49,7 +56,14 @@ def _require(path: Path) -> Path:
 
 
 def _canonical_points_camera_mm() -> NDArray[np.float64]:
-    """MediaPipe's canonical face (cm, y up, z toward the viewer) as a face 500 mm in front of the camera."""
+    """MediaPipe's canonical face (cm, y up, z toward the viewer) as a face 500 mm in front of the camera.
+
+    Without ../shared, the built-in face model's points (mm, already y down and z into the head).
+    """
+    if shared_data_dir() is None and not os.environ.get("CI"):
+        from facemesh import builtin_face_model
+
+        return builtin_face_model().vertices_mm + np.array([0.0, 0.0, FACE_DEPTH_MM])
     path = _require(_data_dir() / "reference" / "mediapipe_face_geometry" / "canonical_face_model.obj")
     verts = [[float(v) for v in line.split()[1:4]] for line in path.read_text().splitlines() if line.startswith("v ")]
     cm = np.array(verts)
@@ -194,9 +208,16 @@ def eth() -> NDArray[np.float64]:
 
 @pytest.mark.parametrize("backend", ["open3d", "pymeshlab"])
 def test_canonical_face_is_one_oriented_manifold_covering_the_face(
-    backend: str, canonical: NDArray[np.float64]
+    backend: str, canonical: NDArray[np.float64], request: pytest.FixtureRequest
 ) -> None:
     _backend_or_skip(backend)
+    if backend == "open3d" and shared_data_dir() is None:
+        # A library defect this stand-in shows: Open3D's Ball-Pivoting on the built-in model's upper lip
+        # makes a Moebius fold (triangles [73, 41, 38] and [41, 38, 82] both traverse 41 -> 38), which
+        # orient_triangles_toward cannot orient ("impossible for Ball-Pivoting output on a face").
+        request.applymarker(
+            pytest.mark.xfail(strict=True, reason="open3d BPA on the built-in model's points is non-orientable")
+        )
     rec = ball_pivoting(canonical, (0.0, 0.0, 0.0), BallPivotingSettings(backend=backend))
     assert rec.backend == backend
     # the reference triangulation itself has projected coverage 1.001 (a few

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import face_photo
 
 from facemesh.io import load_image_rgb
 from gazeaug.cli import main
@@ -21,9 +22,11 @@ def _angle(a, b):
 
 
 @pytest.fixture(scope="module")
-def sim_dir(tmp_path_factory, shared_data):
+def sim_dir(tmp_path_factory, faces_dir):
+    """The built-in face and sergey (without ../shared, the built-in face and its photo file), 4 images each."""
     out = tmp_path_factory.mktemp("sim") / "wheelchair"
-    simulate([None, shared_data / "faces" / "sergey.png"], BUILTIN_RIGS["wheelchair"], out, per_face=4, progress=False)
+    second = face_photo(faces_dir, "sergey.png", any_face=True)
+    simulate([None, second], BUILTIN_RIGS["wheelchair"], out, per_face=4, progress=False)
     return out
 
 
@@ -55,8 +58,8 @@ def test_the_dataset_reads_back_and_faces_are_found(sim_dir, detector):
     assert np.median(diffs) < 5.0 and max(diffs) < 12.0
 
 
-def test_eyeballs_fixate_the_target_and_lids_follow_pitch(shared_data, detector):
-    img = load_image_rgb(shared_data / "faces" / "astronaut.png")
+def test_eyeballs_fixate_the_target_and_lids_follow_pitch(faces_dir, detector):
+    img = load_image_rgb(faces_dir / "astronaut.png")
     subj = SimSubject(img, detector, "a", SimSettings(kappa_deg=0.0), np.random.default_rng(0))
     target = np.array([0.0, -200.0, -400.0])  # above and in front of the eyes (head frame: y down)
     for side in ("left", "right"):

@@ -1,4 +1,4 @@
-"""UT Multiview raw reader on a miniature fixture in its layout, built from the real p00 frame.
+"""UT Multiview raw reader on a miniature fixture in its layout, built from the p00 frame (real or synthetic).
 
 The layout and the file formats are the ones the paper author's own reader and
 renderer read (cedriclmenard/fastgaze ``gazeirislandmarks/datasets/utmultiview.py``
@@ -417,7 +417,8 @@ def test_images_are_the_jpg_files_fastgaze_reads(ut, tmp_path):
     images = raw / "img000" / "images"
     cv2.imwrite(str(images / "00000000.bmp"), np.zeros((8, 8, 3), np.uint8))
     s = next(iter(UTMultiview(tmp_path / "copy")))
-    assert s.image_path == images / "00000000.jpg" and s.camera.image_size == (1280, 720)
+    h, w = ut[1]["image0"].shape[:2]
+    assert s.image_path == images / "00000000.jpg" and s.camera.image_size == (w, h)
     (images / "00000000.jpg").unlink()  # other extensions are read when there is no .jpg
     assert next(iter(UTMultiview(tmp_path / "copy"))).image_path == images / "00000000.bmp"
 
