@@ -49,8 +49,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._native import native_stderr_silenced
 from .conventions import gltf_to_opencv_points, opencv_to_gltf_directions, opencv_to_gltf_points
-from .io import atomic_write
+from .io import _check_pixel_count, _header_size, atomic_write
 from .types import CameraIntrinsics, FaceKeypoints, FaceLandmarks, FaceMesh, HeadPose, InputError
 
 __all__ = ["FORMAT_VERSION", "save_glb", "load_glb", "gltf_bytes", "parse_glb"]
@@ -514,7 +515,14 @@ def _read_image(gltf: Mapping[str, Any], binary: bytes, primitive: Mapping[str, 
     if view.get("buffer") != 0 or end > len(binary):
         raise InputError(f"{name}: the texture image runs past the end of the binary chunk (truncated?)")
     encoded = np.frombuffer(binary, dtype=np.uint8, count=end - start, offset=start)
-    bgr = cv2.imdecode(encoded, cv2.IMREAD_COLOR)
+    size = _header_size(encoded, Path(name))
+    if size is not None:  # refused from its header, before decoding, as load_image_rgb refuses an image
+        _check_pixel_count(Path(f"{name}: the texture"), *size)
+    try:
+        with native_stderr_silenced():  # libpng and libjpeg print to descriptor 2 from C; our error names the file
+            bgr = cv2.imdecode(encoded, cv2.IMREAD_COLOR)
+    except cv2.error as exc:  # sizes beyond OpenCV's limits, or a decoder assertion
+        raise InputError(f"{name}: the texture image cannot be decoded ({exc.__class__.__name__})") from exc
     if bgr is None:
         raise InputError(f"{name}: the texture image ({image.get('mimeType', 'unknown type')}) cannot be decoded")
     return np.ascontiguousarray(bgr[..., ::-1])
@@ -534,16 +542,21 @@ def load_glb(path: str | os.PathLike[str]) -> FaceMesh:
         The mesh.
 
     Raises:
-        InputError: the file is missing, is not a GLB 2.0 file, is truncated
-            or damaged, lacks the ``extras.facemesh`` metadata (it was not
-            written by facemesh), or has accessors of unexpected types. The
-            message names the file.
+        InputError: the file is missing or cannot be read (permissions, I/O
+            error), is not a GLB 2.0 file, is truncated or damaged, lacks the
+            ``extras.facemesh`` metadata (it was not written by facemesh), has
+            accessors of unexpected types, or its pose puts the head at or
+            behind the camera (translation z <= 0 mm). The message names the file.
     """
     p = Path(path)
     name = str(p)
-    if not p.is_file():
-        raise InputError(f"{name}: no such file")
-    gltf, binary = parse_glb(p.read_bytes(), name)
+    try:
+        if not p.is_file():
+            raise InputError(f"{name}: no such file")
+        data = p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read the file ({exc.strerror or exc.__class__.__name__})") from exc
+    gltf, binary = parse_glb(data, name)
 
     meta = (gltf.get("extras") or {}).get("facemesh") if isinstance(gltf.get("extras"), dict) else None
     if meta is None and isinstance(gltf.get("asset"), dict) and isinstance(gltf["asset"].get("extras"), dict):
@@ -557,13 +570,19 @@ def load_glb(path: str | os.PathLike[str]) -> FaceMesh:
         )
 
     try:
-        return _build_mesh(gltf, binary, meta, name)
+        mesh = _build_mesh(gltf, binary, meta, name)
     except InputError as exc:
         if str(exc).startswith(name):
             raise
         raise InputError(f"{name}: {exc}") from exc
     except (AttributeError, KeyError, IndexError, TypeError, ValueError) as exc:
         raise InputError(f"{name}: the glTF content or facemesh metadata is malformed ({exc!r})") from exc
+    z = float(mesh.pose.translation_mm[2])
+    if not z > 0:  # every renderer looks down +z: a head at or behind the camera centre shows nothing
+        raise InputError(
+            f"{name}: the head is behind the camera (z = {z:g} mm; expected the pose's translation z > 0 mm)"
+        )
+    return mesh
 
 
 def _build_mesh(gltf: Mapping[str, Any], binary: bytes, meta: Mapping[str, Any], name: str) -> FaceMesh:

@@ -18,6 +18,7 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._native import native_stderr_silenced
 from .outputs import umask_mode
 from .types import InputError
 
@@ -83,18 +84,19 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     other formats through Pillow when it is installed): images above
     :data:`MAX_IMAGE_PIXELS` are refused without being decoded.
 
+    The decoders' own lines on stderr (libpng's "iCCP: known incorrect sRGB
+    profile", libjpeg's "Corrupt JPEG data") are silenced: a problem that
+    matters is this function's InputError.
+
     Raises:
-        InputError: the file is missing, is not an image, is truncated, is larger
-            than :data:`MAX_IMAGE_PIXELS`, or OpenCV fails to decode it.
+        InputError: the file is missing, cannot be read (permissions, I/O error),
+            is not an image, is truncated, is larger than :data:`MAX_IMAGE_PIXELS`,
+            or OpenCV fails to decode it.
     """
     import cv2
 
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a file")
-    data = np.fromfile(str(p), dtype=np.uint8)
+    data = _read_bytes(p)
     if data.size == 0:
         raise InputError(f"{p}: the file is empty")
     if not _looks_complete(data):
@@ -103,7 +105,8 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     if size is not None:
         _check_pixel_count(p, *size)
     try:
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        with native_stderr_silenced():  # libpng and libjpeg print to descriptor 2 from C (damaged files, iCCP)
+            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:  # e.g. sizes beyond OpenCV's limits, or a decoder assertion
         reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         raise InputError(f"{p}: OpenCV cannot decode the image ({reason})") from exc
@@ -115,6 +118,18 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
     return to_rgb_uint8(img, name=str(p))
+
+
+def _read_bytes(p: Path) -> NDArray[np.uint8]:
+    """The file's bytes, or an InputError naming it: missing, not a file, or unreadable (permissions, I/O error)."""
+    try:
+        if not p.exists():
+            raise InputError(f"{p}: no such file")
+        if not p.is_file():
+            raise InputError(f"{p}: not a file")
+        return np.fromfile(str(p), dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read the file ({exc.strerror or exc.__class__.__name__})") from exc
 
 
 def _check_pixel_count(p: Path, width: int, height: int) -> None:

@@ -48,6 +48,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "REFERENCES",
+    "MAX_GAZE_COMPONENT",
     "NormalizedCamera",
     "NormalizedViews",
     "normalized_camera",
@@ -351,15 +352,29 @@ class NormalizedViews:
         return len(self.cameras)
 
 
-def _per_pose(value: ArrayLike | None, n: int, name: str) -> NDArray[np.float64] | None:
-    """(3,) or (P, 3) -> (P, 3) float64, checked finite."""
+#: Largest |component| of a gaze target (mm) or gaze vector that :func:`normalized_views` accepts: 10 km,
+#: far beyond any scene, and far below where ``target - reference`` and its norm lose precision or overflow.
+MAX_GAZE_COMPONENT = 1e7
+
+
+def _per_pose(value: ArrayLike | None, n: int, name: str, unit: str = "") -> NDArray[np.float64] | None:
+    """(3,) or (P, 3) -> (P, 3) float64, checked finite and within :data:`MAX_GAZE_COMPONENT` (``unit``: " mm")."""
     if value is None:
         return None
-    v = np.asarray(value, dtype=np.float64)
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise GazeAugError(f"{name}: expected (3,) or ({n}, 3) numbers, got {value!r}") from exc
     if v.shape == (3,):
         v = np.broadcast_to(v, (n, 3))
     if v.shape != (n, 3) or not np.isfinite(v).all():
         raise GazeAugError(f"{name}: expected finite (3,) or ({n}, 3) values, got {np.asarray(value).tolist()}")
+    big = np.abs(v).max(initial=0.0)
+    if big > MAX_GAZE_COMPONENT:
+        raise GazeAugError(
+            f"{name}: expected components within +-{MAX_GAZE_COMPONENT:g}{unit}, got one of {big:g} "
+            f"(in {np.asarray(value).tolist() if v.size <= 12 else f'{n} poses'})"
+        )
     return v
 
 
@@ -386,16 +401,17 @@ def normalized_views(
         focal_px: f_n, pixels.
         size_wh: the eye patch (width, height), pixels.
         gaze_target_mm: (3,) or (P, 3) float, mm, camera frame of each pose: the point looked at
-            (each reference's gaze is ``target - reference``).
+            (each reference's gaze is ``target - reference``); every component within
+            +-:data:`MAX_GAZE_COMPONENT` (1e7 mm, 10 km).
         gaze_vector: (3,) or (P, 3) float, camera frame: a gaze direction shared by the three
-            references (instead of a target).
+            references (instead of a target); components within +-1e7 as well.
 
     Returns:
         :class:`NormalizedViews` (see there for shapes, units and frames).
 
     Raises:
-        GazeAugError: a target and a vector both given; non-finite or zero gaze; a reference
-            point at or behind the camera; mismatched shapes.
+        GazeAugError: a target and a vector both given; non-finite, too large (a component beyond
+            1e7) or zero gaze; a reference point at or behind the camera; mismatched shapes.
     """
     rot = np.asarray(rotations, dtype=np.float64)
     trans = np.asarray(translations_mm, dtype=np.float64)
@@ -404,6 +420,8 @@ def normalized_views(
     if gaze_target_mm is not None and gaze_vector is not None:
         raise GazeAugError("give a gaze target or a gaze vector, not both")
     n = len(rot)
+    target = _per_pose(gaze_target_mm, n, "gaze target", " mm")
+    vector = _per_pose(gaze_vector, n, "gaze vector")
     refs = np.einsum("pij,ej->pei", rot, reference_points_head(model_vertices_mm, keypoints)) + trans[:, None, :]
     flat = normalized_cameras(
         refs.reshape(-1, 3), np.repeat(rot, 3, axis=0), distance_mm=distance_mm, focal_px=focal_px, size_wh=size_wh
@@ -411,8 +429,6 @@ def normalized_views(
     r_norm = np.stack([c.rotation for c in flat]).reshape(n, 3, 3, 3)
     head = rotation_to_head_pitchyaw(r_norm @ rot[:, None])
     gaze = None
-    target = _per_pose(gaze_target_mm, n, "gaze target")
-    vector = _per_pose(gaze_vector, n, "gaze vector")
     if target is not None or vector is not None:
         if target is not None:
             g = target[:, None, :] - refs

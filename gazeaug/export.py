@@ -15,12 +15,18 @@ from typing import Any
 
 from .errors import GazeAugError
 from .models import import_torch
+from .normalize import NormalizationSettings
 
 __all__ = ["export_onnx"]
 
 
 def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int = 17) -> Path:
-    """Write the model as ONNX (atomically); returns the path."""
+    """Write the model as ONNX (atomically); returns the path.
+
+    Raises:
+        GazeAugError: the output does not end in .onnx, ``meta["patch_size_wh"]`` is not two integers
+            within :attr:`NormalizationSettings.PATCH_SIDE_RANGE`, or a weight is NaN or infinite.
+    """
     import warnings
 
     from facemesh.io import atomic_write
@@ -33,10 +39,16 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     out = Path(output)
     if out.suffix != ".onnx":
         raise GazeAugError(f"{out}: the output must end in .onnx")
-    w, h = meta.get("patch_size_wh", (60, 36))
+    try:  # load_model checked a file's; a caller's own meta is checked here (huge sizes exhaust memory)
+        w, h = NormalizationSettings(patch_size_wh=meta.get("patch_size_wh", (60, 36))).patch_size_wh
+    except GazeAugError as exc:
+        raise GazeAugError(f"the model's patch_size_wh cannot be exported: {exc}") from exc
+    model = model.cpu().eval()
+    for name, tensor in model.state_dict().items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise GazeAugError(f"not a usable gazeaug model: non-finite weights in {name}; nothing exported")
     example = (torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w), torch.zeros(1, 2))
     buf = io.BytesIO()
-    model = model.cpu().eval()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         torch.onnx.export(

@@ -365,11 +365,17 @@ def _decode_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _check_schema(f: Any, path: Path) -> int:
-    """The checks every read makes; returns the number of rows N.
+#: Labels (pitch, yaw) beyond this, radians, are refused: an angle lies in [-pi, pi] (the slack
+#: lets a float32 rounding of +-pi pass).
+_LABEL_LIMIT_RAD = np.pi * (1 + 1e-6)
 
-    Required keys, the ``complete`` mark, eye patches (N, H, W, 3) alike, labels (N, 2) and finite,
-    every required key N rows long.
+
+def _check_schema(f: Any, path: Path) -> tuple[int, NDArray[np.float32]]:
+    """The checks every read makes; returns the number of rows N and the labels.
+
+    Required keys, the ``complete`` mark, eye patches (N, H, W, 3) alike, labels (N, 2), finite
+    and within [-pi, pi] radians, every required key N rows long. The labels come back as
+    (N, 4) float32: head pose (pitch, yaw), gaze (pitch, yaw).
     """
     missing = [k for k in REQUIRED_KEYS if k not in f]
     if missing:
@@ -389,7 +395,14 @@ def _check_schema(f: Any, path: Path) -> int:
     bad = ~np.isfinite(labels).all(axis=1)
     if bad.any():
         raise GazeAugError(f"{path}: {int(bad.sum())} rows have NaN or infinite labels (first: {int(np.argmax(bad))})")
-    return n
+    bad = (np.abs(labels.astype(np.float64)) > _LABEL_LIMIT_RAD).any(axis=1)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise GazeAugError(
+            f"{path}: {int(bad.sum())} rows have head-pose or gaze labels outside [-pi, pi] radians "
+            f"(first: row {first}, head pose {labels[first, :2].tolist()}, gaze {labels[first, 2:].tolist()})"
+        )
+    return n, labels.astype(np.float32, copy=False)
 
 
 def _check_rows(f: Any, path: Path, key: str, n: int) -> None:
@@ -420,10 +433,14 @@ class H5TrainingSet:
         patch_size_wh: eye patch (width, height), pixels.
         attrs: the file attributes (``settings`` and ``skipped`` decoded from JSON).
         settings: the run's parameters (``attrs["settings"]``; {} when absent).
+        fingerprint: ``"K rows, sha1 HEX"``: the rows in use and a SHA-1 of their labels (head pose
+            and gaze, float32 little-endian) and subjects; another file, or the same file with other
+            rows, has another (a resumed training compares it).
 
     Raises:
         GazeAugError: unreadable or damaged file, unfinished run, missing keys, wrong shapes, NaN
-            labels, an unknown subject, no rows.
+            labels or labels outside [-pi, pi] radians, a ``settings`` attribute that is not a JSON
+            object, an unknown subject, no rows.
     """
 
     #: The columns :meth:`batches` yields.
@@ -439,15 +456,17 @@ class H5TrainingSet:
     ):
         h5py = _import_h5py()
         self.path = Path(path)
+        self._fingerprint: str | None = None
         try:
             f = h5py.File(self.path, "r")
         except OSError as exc:
             raise GazeAugError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
         with f, _reading(self.path):
-            n = _check_schema(f, self.path)
+            n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
             self.attrs = _decode_attrs(f.attrs)
+            raw_settings = f.attrs.get("settings")
         self._n = n
         known = sorted(set(subj.tolist()))
         unknown = sorted({str(x) for x in (*(subjects or ()), *(exclude_subjects or ()))} - set(known))
@@ -464,8 +483,15 @@ class H5TrainingSet:
             raise GazeAugError(f"{self.path}: no rows to use (after the subject selection)")
         self.subjects = subj
         self.patch_size_wh = (int(eye_shape[1]), int(eye_shape[0]))
-        settings = self.attrs.get("settings")
-        self.settings: dict[str, Any] = settings if isinstance(settings, dict) else {}
+        self.settings: dict[str, Any] = _settings_attr(raw_settings, self.path)
+        self._labels = labels
+
+    @property
+    def fingerprint(self) -> str:
+        """``"K rows, sha1 HEX"``: the K rows in use, a SHA-1 of their labels and subjects (see the class)."""
+        if self._fingerprint is None:
+            self._fingerprint = _fingerprint(self._labels[self.rows], self.subjects[self.rows])
+        return self._fingerprint
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -526,6 +552,42 @@ class H5TrainingSet:
                     carried -= batch_size
         if carried:
             yield {k: np.concatenate(v) for k, v in carry.items()}
+
+
+def _settings_attr(raw: Any, path: Path) -> dict[str, Any]:
+    """The ``settings`` attribute as a dict ({} when absent); anything but a JSON object is an error."""
+    if raw is None:
+        return {}
+    if isinstance(raw, (bytes, np.bytes_)):
+        raw = bytes(raw).decode("utf-8", errors="replace")
+    if not isinstance(raw, str):
+        raise GazeAugError(
+            f"{path}: the 'settings' attribute must be a JSON object of the run's parameters, "
+            f"got a {type(raw).__name__} ({raw!r:.60})"
+        )
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise GazeAugError(
+            f"{path}: the 'settings' attribute is not valid JSON ({exc.msg} at character {exc.pos}; "
+            f"expected an object of the run's parameters, got {raw!r:.60})"
+        ) from exc
+    if not isinstance(value, dict):
+        raise GazeAugError(
+            f"{path}: the 'settings' attribute must be a JSON object of the run's parameters, "
+            f"got a JSON {type(value).__name__} ({raw!r:.60})"
+        )
+    return value
+
+
+def _fingerprint(labels: NDArray[Any], subjects: NDArray[Any]) -> str:
+    """``"K rows, sha1 HEX"`` of K rows' labels (K, 4) and subjects (K,)."""
+    import hashlib
+
+    h = hashlib.sha1(usedforsecurity=False)
+    h.update(np.ascontiguousarray(labels, dtype="<f4").tobytes())
+    h.update(json.dumps([str(x) for x in subjects.tolist()]).encode("utf-8"))
+    return f"{len(labels)} rows, sha1 {h.hexdigest()}"
 
 
 def read_h5(path: str | Path, keys: Sequence[str] | None = None) -> dict[str, Any]:

@@ -17,9 +17,10 @@ columns, wrong calibration) stop the run with a message naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -282,6 +283,46 @@ def _stats(angles_rad: NDArray[np.float64]) -> dict[str, Any]:
     }
 
 
+def _take(writer: H5Writer, outcome: SampleOutcome) -> None:
+    """Hand one sample's outcome to the writer (rows or the skip, and its source labels)."""
+    writer.append(outcome.rows, outcome.source_index, outcome.skipped)
+    if outcome.before is not None:
+        writer.append_source(outcome.source_index, outcome.before)
+
+
+@contextlib.contextmanager
+def _interrupt_between_samples() -> Iterator[Callable[[], bool]]:
+    """Turn a first Ctrl-C into a flag the run checks between samples (a second one interrupts at once).
+
+    Python delivers SIGINT as a KeyboardInterrupt wherever the main thread is, and
+    drops it when that is a garbage-collection callback ("Exception ignored ..."): the
+    run would then go on as if nothing was pressed. Checked between samples, the
+    interruption is never lost and always leaves a consistent, resumable file.
+    Outside the main thread (or when a handler other than Python's default is set),
+    nothing changes.
+    """
+    import signal
+    import threading
+
+    pressed: list[bool] = []
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield lambda: False
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(True)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(pressed)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def run_dataset(
     reader: DatasetReader,
     output: str | Path,
@@ -340,17 +381,18 @@ def run_dataset(
         t_first = None
         processed = 0
         try:
-            for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
-                if t_first is None:
-                    t_first = time.perf_counter()
-                writer.append(outcome.rows, outcome.source_index, outcome.skipped)
-                if outcome.before is not None:
-                    writer.append_source(outcome.source_index, outcome.before)
-                processed += 1
-                if bar is not None:
-                    bar.update(1)
-                if n % flush_every == 0:
-                    writer.flush()
+            with _interrupt_between_samples() as interrupted:
+                for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
+                    _take(writer, outcome)
+                    if t_first is None:
+                        t_first = time.perf_counter()
+                    processed += 1
+                    if bar is not None:
+                        bar.update(1)
+                    if n % flush_every == 0:
+                        writer.flush()
+                    if interrupted():
+                        raise KeyboardInterrupt
         except KeyboardInterrupt:
             writer.close()  # the .part stays for --resume
             if bar is not None:

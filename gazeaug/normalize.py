@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,9 +64,15 @@ class NormalizationSettings:
     Attributes:
         distance_mm: d_n, distance of the normalized camera from the eye (default 600 mm, the paper's).
         focal_px: f_n, its focal length (default 650 px, the paper's).
-        patch_size_wh: eye patch (width, height) in pixels (default (60, 36)).
+        patch_size_wh: eye patch (width, height) in pixels (default (60, 36)): integers from 4 to
+            1024 per side (:attr:`PATCH_SIDE_RANGE`; a 224 x 224 face patch fits, a patch is held
+            in memory per pose and per eye).
         antialias: sample a Gaussian pyramid per pixel's footprint (default True);
             False samples the full-resolution image bilinearly, like ``cv2.warpPerspective``.
+
+    Raises:
+        GazeAugError: a field of the wrong type (a bool or text for a number, a float for a patch
+            side, a non-bool ``antialias``) or out of bounds.
     """
 
     distance_mm: float = 600.0
@@ -74,21 +80,66 @@ class NormalizationSettings:
     patch_size_wh: tuple[int, int] = (60, 36)
     antialias: bool = True
 
+    #: Allowed patch width and height, pixels.
+    PATCH_SIDE_RANGE: ClassVar[tuple[int, int]] = (4, 1024)
+
     def __post_init__(self) -> None:
         for name in ("distance_mm", "focal_px"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (_is_number(v) and math.isfinite(v) and v > 0):
                 raise GazeAugError(f"normalization {name}: expected a finite number > 0, got {v!r}")
-        w, h = self.patch_size_wh
-        if int(w) != w or int(h) != h or w < 4 or h < 4:
-            raise GazeAugError(f"patch size: expected integers (width, height) >= 4, got {self.patch_size_wh}")
-        object.__setattr__(self, "patch_size_wh", (int(w), int(h)))
+            object.__setattr__(self, name, float(v))
+        lo, hi = self.PATCH_SIDE_RANGE
+        size = self.patch_size_wh
+        if not (
+            isinstance(size, (tuple, list, np.ndarray))
+            and len(size) == 2
+            and all(_is_integer(v) and lo <= v <= hi for v in size)
+        ):
+            shown = size.tolist() if isinstance(size, np.ndarray) else size
+            raise GazeAugError(
+                f"patch size: expected two integers (width, height), each from {lo} to {hi} px, got {shown!r}"
+            )
+        object.__setattr__(self, "patch_size_wh", (int(size[0]), int(size[1])))
+        if not isinstance(self.antialias, (bool, np.bool_)):
+            raise GazeAugError(f"normalization antialias: expected true or false, got {self.antialias!r}")
+        object.__setattr__(self, "antialias", bool(self.antialias))
+
+    @classmethod
+    def from_dict(cls, data: Any) -> NormalizationSettings:
+        """Settings from their recorded form (:meth:`as_dict`, e.g. a model's ``normalization``).
+
+        A key that is absent takes its default; a key that is present must hold a valid value
+        (``null`` is not a default), and unknown keys are refused.
+
+        Raises:
+            GazeAugError: not a dict, unknown keys, or a value of the wrong type or out of bounds.
+        """
+        known = [f.name for f in fields(cls)]  # the PATCH_SIDE_RANGE ClassVar is no field
+        if not isinstance(data, Mapping):
+            raise GazeAugError(
+                f"normalization settings: expected a dict of {known}, got {type(data).__name__} {data!r:.80}"
+            )
+        unknown = sorted(str(k) for k in data if k not in known)
+        if unknown:
+            raise GazeAugError(f"normalization settings: unknown keys {unknown} (known: {known})")
+        return cls(**{str(k): v for k, v in data.items()})
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form, as recorded in outputs."""
         d = asdict(self)
         d["patch_size_wh"] = list(self.patch_size_wh)
         return d
+
+
+def _is_number(v: Any) -> bool:
+    """A real number (int, float or numpy scalar), not a bool."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_integer(v: Any) -> bool:
+    """An integer (int or numpy integer), not a bool."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
 
 @dataclass(frozen=True)

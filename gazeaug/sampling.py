@@ -16,10 +16,11 @@ other reading. Both are offered on the command line (``--yaw-var`` /
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -97,6 +98,16 @@ class HeadPoseDistribution:
         return {"mean_deg": list(self.mean_deg), "cov_deg2": [list(r) for r in self.cov_deg2]}
 
 
+def _is_real(v: Any) -> bool:
+    """A real number (int, float or numpy scalar), not a bool."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_int(v: Any) -> bool:
+    """An integer (int or numpy integer), not a bool."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 @dataclass(frozen=True)
 class Rig:
     """Where the application's camera sits relative to the user's head, and how the head moves.
@@ -113,11 +124,14 @@ class Rig:
         head_yaw_std_deg, head_pitch_std_deg: spread of the head's own turning (deg, standard deviations).
         head_yaw_mean_deg, head_pitch_mean_deg: the head's mean turn away from straight ahead (deg,
             same convention: positive pitch = looking up, positive yaw = toward the user's right).
-        image_size_wh: the camera's image size (for the simulator).
-        focal_px: the camera's focal length in pixels (principal point at the image centre).
+        image_size_wh: the camera's image size (for the simulator): integers, 32 to 8192 px per side.
+        focal_px: the camera's focal length in pixels (principal point at the image centre), finite,
+            > 0 and < 1e6.
         target_box_mm: ((x0, y0, z0), (x1, y1, z1)) corners of the box, rig frame, where the
             targets the user looks at lie (drawn uniformly).
         head_position_std_mm: spread of the head's position around the rig frame's origin.
+
+    A rig file (:func:`load_rig`) gives every field but ``name``; the defaults here serve code only.
     """
 
     name: str = "custom"
@@ -134,6 +148,12 @@ class Rig:
     )
     head_position_std_mm: float = 15.0
 
+    #: Allowed image width and height, pixels (a simulated image is held whole in memory, with its depth
+    #: and several layers: 8192 x 8192 is already a few GB).
+    IMAGE_SIDE_RANGE: ClassVar[tuple[int, int]] = (32, 8192)
+    #: The focal length must stay below this, pixels (a field of view of 0.05 deg over 8192 px).
+    MAX_FOCAL_PX: ClassVar[float] = 1e6
+
     def __post_init__(self) -> None:
         c = np.asarray(self.camera_position_mm, dtype=np.float64)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
@@ -141,14 +161,31 @@ class Rig:
         if c[2] >= 0:
             raise GazeAugError(f"rig {self.name!r}: the camera must be in front of the face (z < 0), got z = {c[2]}")
         for f in ("head_yaw_std_deg", "head_pitch_std_deg", "head_yaw_mean_deg", "head_pitch_mean_deg"):
-            v = float(getattr(self, f))
-            if not math.isfinite(v) or (f.endswith("std_deg") and v < 0):
-                raise GazeAugError(f"rig {self.name!r}: {f} must be finite{' and >= 0' if 'std' in f else ''}, got {v}")
+            v = getattr(self, f)
+            if not (_is_real(v) and math.isfinite(v)) or (f.endswith("std_deg") and v < 0):
+                raise GazeAugError(
+                    f"rig {self.name!r}: {f} must be a finite number{' >= 0' if 'std' in f else ''}, got {v!r}"
+                )
+            object.__setattr__(self, f, float(v))
         object.__setattr__(self, "camera_position_mm", tuple(float(x) for x in c))
-        w, h = (int(v) for v in self.image_size_wh)
-        if w < 32 or h < 32 or not (math.isfinite(self.focal_px) and self.focal_px > 0):
-            raise GazeAugError(f"rig {self.name!r}: bad camera: image {self.image_size_wh}, focal {self.focal_px}")
-        object.__setattr__(self, "image_size_wh", (w, h))
+        lo, hi = self.IMAGE_SIDE_RANGE
+        size = self.image_size_wh
+        if not (isinstance(size, (tuple, list)) and len(size) == 2 and all(_is_int(v) and lo <= v <= hi for v in size)):
+            raise GazeAugError(
+                f"rig {self.name!r}: image_size_wh: expected two integers (width, height), "
+                f"each from {lo} to {hi} px, got {size!r}"
+            )
+        object.__setattr__(self, "image_size_wh", (int(size[0]), int(size[1])))
+        focal = self.focal_px
+        if not (_is_real(focal) and math.isfinite(focal) and 0 < focal < self.MAX_FOCAL_PX):
+            raise GazeAugError(
+                f"rig {self.name!r}: focal_px: expected a number > 0 and < {self.MAX_FOCAL_PX:g} px, got {focal!r}"
+            )
+        object.__setattr__(self, "focal_px", float(focal))
+        p = self.head_position_std_mm
+        if not (_is_real(p) and math.isfinite(p) and p >= 0):
+            raise GazeAugError(f"rig {self.name!r}: head_position_std_mm: expected a finite number >= 0, got {p!r}")
+        object.__setattr__(self, "head_position_std_mm", float(p))
         box = np.asarray(self.target_box_mm, dtype=np.float64)
         if box.shape != (2, 3) or not np.isfinite(box).all() or (box[0] > box[1]).any():
             raise GazeAugError(f"rig {self.name!r}: target_box_mm: expected [[x0, y0, z0], [x1, y1, z1]], min <= max")
@@ -237,15 +274,21 @@ BUILTIN_RIGS = {
 def load_rig(spec: str | Path) -> Rig:
     """A built-in rig by name (``wheelchair``, ``screen``) or a YAML/JSON file with :class:`Rig`'s fields.
 
+    A file gives every field of :class:`Rig` but ``name`` (the file's stem when absent): a field left
+    out is an error, never a default, so a truncated file cannot pass for a rig it is not.
+
     Raises:
-        GazeAugError: unknown name, unreadable file, unknown or bad fields.
+        GazeAugError: unknown name, unreadable file, missing, unknown or bad fields.
     """
     if str(spec) in BUILTIN_RIGS:
         return BUILTIN_RIGS[str(spec)]
     p = Path(spec)
-    if not p.is_file():
-        raise GazeAugError(f"rig {spec!r}: not a built-in rig ({', '.join(BUILTIN_RIGS)}) and no such file")
-    text = p.read_text(encoding="utf-8", errors="replace")
+    try:
+        if not p.is_file():
+            raise GazeAugError(f"rig {spec!r}: not a built-in rig ({', '.join(BUILTIN_RIGS)}) and no such file")
+        text = p.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise GazeAugError(f"{p}: cannot read the rig file ({exc.strerror or exc.__class__.__name__})") from exc
     try:
         if p.suffix.lower() == ".json":
             import json
@@ -259,10 +302,17 @@ def load_rig(spec: str | Path) -> Rig:
         raise GazeAugError(f"{p}: not valid {p.suffix.lstrip('.').upper() or 'YAML'} ({exc})") from exc
     if not isinstance(data, dict):
         raise GazeAugError(f"{p}: expected a mapping of rig fields, got {type(data).__name__}")
-    known = set(Rig.__dataclass_fields__)
+    fields = [f.name for f in dataclasses.fields(Rig)]  # ClassVar bounds are no fields
+    known = set(fields)
     unknown = sorted(str(k) for k in set(data) - known)
     if unknown:
         raise GazeAugError(f"{p}: unknown rig fields {unknown} (known: {sorted(known)})")
+    missing = [k for k in fields if k != "name" and k not in data]
+    if missing:  # a default would silently stand in for what the file meant to say (a truncated file)
+        raise GazeAugError(
+            f"{p}: a rig file must give every field but 'name'; missing {missing} "
+            f"(see data_samples/rigs/ for complete files)"
+        )
     data.setdefault("name", p.stem)
     try:
         for k in ("camera_position_mm", "image_size_wh"):

@@ -31,6 +31,7 @@ from .errors import GazeAugError
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch
 from .models.preprocess import PREPROCESSING, prepare_inputs
+from .normalize import NormalizationSettings
 
 __all__ = [
     "TrainSettings",
@@ -55,8 +56,8 @@ class TrainSettings:
         model_options: keyword options of the model factory.
         epochs: passes over the training set (default 10).
         batch_size: samples per step (default 256).
-        lr: AdamW learning rate (default 1e-3), decayed by cosine to 1% at the end.
-        weight_decay: Adam weight decay (default 1e-4).
+        lr: AdamW learning rate (default 1e-3), decayed by cosine to 1% at the end; in (0, 10].
+        weight_decay: Adam weight decay (default 1e-4); in [0, 10).
         seed: seeds weights, shuffling and everything random (default 0).
         device: ``auto`` (CUDA when present), ``cpu`` or ``cuda``.
     """
@@ -75,10 +76,25 @@ class TrainSettings:
             raise GazeAugError(f"epochs: expected an integer >= 1, got {self.epochs!r}")
         if not (isinstance(self.batch_size, int) and self.batch_size >= 1):
             raise GazeAugError(f"batch size: expected an integer >= 1, got {self.batch_size!r}")
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise GazeAugError(f"learning rate: expected > 0, got {self.lr!r}")
+        if not (_is_number(self.lr) and 0 < self.lr <= 10):  # beyond, every step overflows the weights
+            raise GazeAugError(f"learning rate: expected a number in (0, 10], got {self.lr!r}")
+        if not (_is_number(self.weight_decay) and 0 <= self.weight_decay < 10):
+            raise GazeAugError(f"weight decay: expected a number in [0, 10), got {self.weight_decay!r}")
+        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed < 2**63):
+            raise GazeAugError(f"seed: expected an integer from 0 to 2**63 - 1, got {self.seed!r}")
+        if not (isinstance(self.model_options, dict) and all(isinstance(k, str) for k in self.model_options)):
+            raise GazeAugError(f"model options: expected a dict of named options, got {self.model_options!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise GazeAugError(f"device: expected auto, cpu or cuda, got {self.device!r}")
+
+
+def _is_number(v: Any) -> bool:
+    """A finite real number (int, float or numpy scalar), not a bool."""
+    return (
+        isinstance(v, (int, float, np.integer, np.floating))
+        and not isinstance(v, (bool, np.bool_))
+        and math.isfinite(v)
+    )
 
 
 def angular_errors_deg(
@@ -146,16 +162,22 @@ def _load_plain(path: Path, what: str) -> dict[str, Any]:
     """A ``.pt`` file's top-level dict, read so that no code in the file can run.
 
     Raises:
-        GazeAugError: missing, truncated, not a PyTorch file, holds objects other than tensors and
-            plain values (a crafted pickle: refused before anything in it is built), or not a dict.
+        GazeAugError: missing or unreadable, truncated, not a PyTorch file, holds objects other than
+            tensors and plain values (a crafted pickle: refused before anything in it is built), or
+            not a dict.
     """
     import pickle
 
     torch = import_torch()
-    if not path.is_file():
-        raise GazeAugError(f"{path}: no such {what} file")
     try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
+        if not path.is_file():
+            raise GazeAugError(f"{path}: no such {what} file")
+        with path.open("rb") as fh:
+            raw = fh.read()
+    except OSError as exc:  # permissions, a folder on the way we may not enter, an I/O error
+        raise GazeAugError(f"{path}: cannot read the {what} file ({exc.strerror or exc.__class__.__name__})") from exc
+    try:
+        obj = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         lines = [ln.strip() for ln in str(exc).splitlines()]
         globals_ = [ln for ln in lines if "GLOBAL" in ln or "Unsupported global" in ln]
@@ -207,8 +229,13 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     The file is read with PyTorch's restricted unpickler (tensors and plain values only): a file
     that carries code is refused and nothing in it runs.
 
+    The metadata are checked: the weights must be finite, ``normalization`` a dict that
+    :meth:`NormalizationSettings.from_dict` accepts (an absent key takes its default; ``meta``
+    holds it in full) and ``patch_size_wh`` two integers within the settings' bounds.
+
     Raises:
-        GazeAugError: missing, truncated, crafted or not a gazeaug model.
+        GazeAugError: missing, unreadable, truncated, crafted or not a gazeaug model; non-finite
+            weights; unusable ``normalization`` or ``patch_size_wh``.
     """
     p = Path(path)
     obj = _load_plain(p, "gazeaug model")
@@ -221,6 +248,9 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     if not isinstance(name, str) or not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
         raise GazeAugError(f"{p}: not a gazeaug model (bad 'model' or 'model_options' entries)")
     state = _state_dict(obj, p, "gazeaug model")
+    _check_finite(state, p)
+    normalization = _normalization(obj.get("normalization", {}), p, "model")
+    patch = _patch_size(obj.get("patch_size_wh", list(NormalizationSettings().patch_size_wh)), p)
     try:
         model = create_model(name, **options)
     except TypeError as exc:
@@ -228,17 +258,59 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     _load_weights(model, state, p, f"gazeaug model ({name})")
     model.to(_device(device)).eval()
     meta = {k: v for k, v in obj.items() if k != "state_dict"}
+    meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
+    meta["patch_size_wh"] = patch
     return model, meta
 
 
+def _check_finite(state: dict[str, Any], path: Path) -> None:
+    """Refuse weights (or buffers) holding NaN or infinity: every prediction would be NaN."""
+    torch = import_torch()
+    for k, v in state.items():
+        if v.is_floating_point() or v.is_complex():
+            if not bool(torch.isfinite(v).all()):
+                bad = int((~torch.isfinite(v)).sum())
+                raise GazeAugError(
+                    f"{path}: not a usable gazeaug model: non-finite weights in {k} "
+                    f"({bad} of {v.numel()} values are NaN or infinite)"
+                )
+
+
+def _normalization(value: Any, path: Path, what: str) -> NormalizationSettings:
+    """A recorded ``normalization`` entry as settings, or a GazeAugError naming the file."""
+    try:
+        return NormalizationSettings.from_dict(value)
+    except GazeAugError as exc:
+        raise GazeAugError(f"{path}: the {what}'s normalization settings are not usable: {exc}") from exc
+
+
+def _patch_size(value: Any, path: Path) -> list[int]:
+    """A model's ``patch_size_wh``: two integers within :attr:`NormalizationSettings.PATCH_SIDE_RANGE`."""
+    try:
+        return list(NormalizationSettings(patch_size_wh=value).patch_size_wh)
+    except GazeAugError as exc:
+        raise GazeAugError(f"{path}: not a usable gazeaug model: 'patch_size_wh': {exc}") from exc
+
+
 def _data_selection(
-    train_path: str | Path, val_path: str | Path | None, val_subjects: Sequence[str] | None
+    train_path: str | Path,
+    val_path: str | Path | None,
+    val_subjects: Sequence[str] | None,
+    data: H5TrainingSet,
+    val: H5TrainingSet | None,
 ) -> dict[str, Any]:
-    """What a run trains and validates on (a resumed run must use exactly the same)."""
+    """What a run trains and validates on (a resumed run must use exactly the same).
+
+    The paths, and the fingerprints (:attr:`H5TrainingSet.fingerprint`: row count and a SHA-1 of
+    the rows' labels and subjects) of the training and validation rows, so another file put in
+    the same place is told apart.
+    """
     return {
         "train_path": str(Path(train_path).resolve()),
         "val_path": None if val_path is None else str(Path(val_path).resolve()),
         "val_subjects": sorted(set(val_subjects or [])),
+        "train_fingerprint": data.fingerprint,
+        "val_fingerprint": None if val is None else val.fingerprint,
     }
 
 
@@ -298,6 +370,8 @@ def _train(
     torch = import_torch()
     ckpt_path = out.with_suffix(".ckpt.pt")
     data = H5TrainingSet(train_path, exclude_subjects=val_subjects or None)
+    # recorded in the model and used by predict and evaluate: checked now, not after the training
+    normalization = _normalization(data.settings.get("normalization", {}), data.path, "training set")
     val = None
     if val_path is not None:
         val = H5TrainingSet(val_path)
@@ -313,7 +387,7 @@ def _train(
     )
     log: list[dict[str, Any]] = []
     start_epoch = 0
-    selection = _data_selection(train_path, val_path, val_subjects)
+    selection = _data_selection(train_path, val_path, val_subjects, data, val)
     if resume:
         if not ckpt_path.is_file():
             raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
@@ -328,7 +402,12 @@ def _train(
         changed = _differences(ck.get("settings") or {}, asdict(s))
         if changed:
             raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings ({'; '.join(changed)})")
-        changed = _differences(ck.get("data_selection") or {}, selection)
+        then = ck.get("data_selection")
+        if not isinstance(then, dict) or "train_fingerprint" not in then:
+            raise GazeAugError(
+                f"{ckpt_path}: made by an older gazeaug that did not record its training data's fingerprint; start over"
+            )
+        changed = _differences(then, selection)
         if changed:
             raise GazeAugError(
                 f"{ckpt_path}: the checkpoint was made with another data selection ({'; '.join(changed)})"
@@ -406,7 +485,7 @@ def _train(
             "model_options": dict(s.model_options),
             "state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
             "preprocessing": PREPROCESSING,
-            "normalization": data.settings.get("normalization", {}),
+            "normalization": normalization.as_dict(),
             "patch_size_wh": list(data.patch_size_wh),
             "train_settings": asdict(s),
             "train_data": str(train_path),

@@ -97,16 +97,25 @@ def test_builtin_rigs_and_their_fitted_distributions():
     assert abs(s.mean_deg[1] - (-8 - np.degrees(np.arctan2(20, 550)))) < 0.5
 
 
+def _rig_yaml(**fields) -> str:
+    """A complete rig file (every field but name): the built-in wheelchair's values, some replaced."""
+    import yaml
+
+    d = {k: v for k, v in BUILTIN_RIGS["wheelchair"].as_dict().items() if k != "name"}
+    d.update(fields)
+    return yaml.safe_dump(d)
+
+
 def test_rig_files(tmp_path):
     p = tmp_path / "rig.yaml"
-    p.write_text("camera_position_mm: [0, 100, -500]\nhead_yaw_std_deg: 3\n")
+    p.write_text(_rig_yaml(camera_position_mm=[0, 100, -500], head_yaw_std_deg=3))
     rig = load_rig(p)
     assert rig.name == "rig" and rig.camera_position_mm == (0.0, 100.0, -500.0) and rig.head_yaw_std_deg == 3
     assert load_rig("wheelchair") is BUILTIN_RIGS["wheelchair"]
     (tmp_path / "bad.yaml").write_text("camera_position: [0, 0, -1]\n")
     with pytest.raises(GazeAugError, match="unknown rig fields"):
         load_rig(tmp_path / "bad.yaml")
-    (tmp_path / "behind.yaml").write_text("camera_position_mm: [0, 0, 100]\n")
+    (tmp_path / "behind.yaml").write_text(_rig_yaml(camera_position_mm=[0, 0, 100]))
     with pytest.raises(GazeAugError, match="in front of the face"):
         load_rig(tmp_path / "behind.yaml")
     (tmp_path / "broken.yaml").write_text("camera_position_mm: [0, 0\n")

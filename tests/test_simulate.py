@@ -77,13 +77,12 @@ def test_eyeballs_fixate_the_target_and_lids_follow_pitch(faces_dir, detector):
 
 def test_rig_files_describe_the_simulation(tmp_path):
     p = tmp_path / "rig.yaml"
-    p.write_text(
-        "camera_position_mm: [0, 200, -400]\nimage_size_wh: [320, 240]\nfocal_px: 300\n"
-        "target_box_mm: [[-100, 100, -500], [100, 300, -300]]\n"
-    )
+    head = "head_yaw_std_deg: 5\nhead_pitch_std_deg: 5\nhead_yaw_mean_deg: 0\nhead_pitch_mean_deg: 0\n"
+    head += "head_position_std_mm: 15\nimage_size_wh: [320, 240]\nfocal_px: 300\n"  # a rig file gives every field
+    p.write_text("camera_position_mm: [0, 200, -400]\ntarget_box_mm: [[-100, 100, -500], [100, 300, -300]]\n" + head)
     rig = load_rig(p)
     assert rig.image_size_wh == (320, 240) and rig.target_box_mm[1] == (100.0, 300.0, -300.0)
-    p.write_text("camera_position_mm: [0, 200, -400]\ntarget_box_mm: [[0, 0, 10], [1, 1, 20]]\n")
+    p.write_text("camera_position_mm: [0, 200, -400]\ntarget_box_mm: [[0, 0, 10], [1, 1, 20]]\n" + head)
     with pytest.raises(Exception, match="in front of the face"):
         load_rig(p)
 

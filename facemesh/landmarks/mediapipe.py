@@ -16,21 +16,19 @@ imported, ``GLOG_minloglevel=2`` and ``TF_CPP_MIN_LOG_LEVEL=2`` are set
 (unless already set: errors still show), and, since some of those lines are
 written straight to descriptor 2, descriptor 2 points to ``/dev/null`` while
 the graph is created and while it processes its first image (then it is
-restored, also when that fails). Pass ``quiet=False`` to see them.
+restored, also when that fails; :func:`facemesh._native.native_stderr_silenced`,
+re-exported here). Pass ``quiet=False`` to see them.
 """
 
 from __future__ import annotations
 
 import os
-import sys
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager, suppress
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .._native import native_stderr_silenced
 from ..conventions import mediapipe_normalized_to_pixels
 from ..types import FaceLandmarks, FaceModel
 
@@ -50,55 +48,6 @@ MEDIAPIPE_INSTALL_HINT = (
 
 #: Environment variables set (when unset) before mediapipe is imported: glog and TensorFlow log errors only.
 QUIET_LOG_ENV = {"GLOG_minloglevel": "2", "TF_CPP_MIN_LOG_LEVEL": "2"}
-
-_FD2_LOCK = threading.RLock()
-
-
-@contextmanager
-def native_stderr_silenced(enabled: bool = True) -> Iterator[None]:
-    """Point file descriptor 2 to ``/dev/null`` inside the block; always restore it.
-
-    Python's ``sys.stderr`` is flushed first, so nothing written before the
-    block is lost. One thread at a time (a re-entrant lock), so concurrent
-    blocks cannot restore each other's ``/dev/null``. Where descriptor 2
-    cannot be duplicated (closed, or no ``/dev/null``), the block runs with
-    stderr untouched.
-    """
-    if not enabled:
-        yield
-        return
-    with _FD2_LOCK:
-        _flush_stderr()
-        saved = -1
-        try:
-            saved = os.dup(2)
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            try:
-                os.dup2(devnull, 2)
-            finally:
-                os.close(devnull)
-        except OSError:
-            if saved >= 0:
-                with suppress(OSError):
-                    os.dup2(saved, 2)  # undo a partial redirection
-                os.close(saved)
-            saved = -1
-        try:
-            yield
-        finally:
-            if saved >= 0:
-                _flush_stderr()
-                try:
-                    os.dup2(saved, 2)
-                finally:
-                    os.close(saved)
-
-
-def _flush_stderr() -> None:
-    try:
-        sys.stderr.flush()
-    except (AttributeError, OSError, ValueError):  # no stderr, or a closed one
-        pass
 
 
 def import_mediapipe_face_mesh() -> Any:
@@ -159,11 +108,14 @@ class MediaPipeFaceMesh:
         return self._graph
 
     def _process(self, img: NDArray[np.uint8]) -> Any:
-        graph = self._get_graph()
         if self._warm:
-            return graph.process(img)
-        with native_stderr_silenced(self.quiet):  # the first run creates the TFLite delegates, which log
-            result = graph.process(img)
+            return self._get_graph().process(img)
+        # One block from the graph's creation to the end of its first run: the graph starts its
+        # calculators in its own threads, which may log (TFLite delegates) after the constructor
+        # returned; a gap between two blocks (where another thread may wait for descriptor 2, e.g.
+        # an image decoding) would let those lines through.
+        with native_stderr_silenced(self.quiet):
+            result = self._get_graph().process(img)
         self._warm = True
         return result
 
