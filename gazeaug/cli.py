@@ -246,16 +246,41 @@ def build_parser() -> argparse.ArgumentParser:
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
     xp.add_argument("--train", type=Path, default=None, help="training dataset folder (default: simulated 'screen')")
     xp.add_argument("--test", type=Path, default=None, help="test dataset folder (default: simulated 'wheelchair')")
+    xp.add_argument(
+        "--test-same-rig",
+        type=Path,
+        default=None,
+        help="optional: the test people in the training rig (read with --test-format), to split the error into "
+        "'new person' and 'new person, new rig' (the built-in setup simulates it)",
+    )
     xp.add_argument("--faces", type=Path, nargs="*", default=None, help="extra face photos for the simulated setup")
-    xp.add_argument("--large", action="store_true", help="a larger simulated setup (more images per face)")
+    xp.add_argument(
+        "--large",
+        action="store_true",
+        help="a larger simulated setup: 400 training images per face and 200 per test set (default 60 and 60)",
+    )
     xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
     xp.add_argument("--train-format", choices=formats, default=None, help=format_help)
     xp.add_argument("--test-format", choices=formats, default=None, help=format_help)
     xp.add_argument("--per-sample", type=_positive_int, default=4)
-    xp.add_argument("--epochs", type=_positive_int, default=10)
-    xp.add_argument("--batch-size", type=_positive_int, default=256)
+    xp.add_argument(
+        "--epochs",
+        type=_positive_int,
+        default=None,
+        help="epochs of the augmented model; the original model gets as many optimizer steps "
+        "(default 10; built-in setup 30)",
+    )
+    xp.add_argument(
+        "--batch-size", type=_positive_int, default=None, help="samples per step (default 256; built-in setup 32)"
+    )
     xp.add_argument("--lr", type=_finite, default=1e-3)
-    xp.add_argument("--seed", type=_seed, default=0)
+    xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
+    xp.add_argument(
+        "--seeds",
+        type=_count(100),
+        default=3,
+        help="runs with seeds SEED, SEED+1, ...; every figure is their mean and standard deviation (default 3)",
+    )
     xp.add_argument("--workers", type=_count(MAX_WORKERS), default=1)
     xp.add_argument("--quiet", action="store_true")
     _add_distribution_options(xp)
@@ -610,26 +635,46 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
-    from .experiment import ExperimentSettings, run_experiment, simulated_setup, table
+    from .experiment import (
+        BUILTIN_TRAIN,
+        ExperimentSettings,
+        builtin_setup,
+        metric_table,
+        reading_verdict,
+        reduction_table,
+        run_experiment,
+        table,
+    )
     from .train import TrainSettings
 
     if (args.train is None) != (args.test is None):
         raise GazeAugError("give both --train and --test, or neither (the built-in simulated setup)")
+    if args.test_same_rig is not None and args.test is None:
+        raise GazeAugError("--test-same-rig goes with --train and --test (the built-in setup simulates its own)")
     distribution = _distribution(args)  # a bad rig or distribution is refused before minutes of work
+    defaults = TrainSettings()
     if args.train is None:
         from facemesh.io import load_image_rgb
 
+        defaults = BUILTIN_TRAIN
         for face in args.faces or []:
             load_image_rgb(face)  # every photo readable before the simulation starts
-        args.train, args.test = simulated_setup(
+        setup = builtin_setup(
             args.output, extra_faces=args.faces or [], large=args.large, seed=args.seed, progress=not args.quiet
         )
+        args.train, args.test, args.test_same_rig = setup.train, setup.test, setup.test_same_rig
     settings = ExperimentSettings(
         per_sample=args.per_sample,
         distribution=distribution,
-        train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed),
+        train=TrainSettings(
+            epochs=args.epochs or defaults.epochs,
+            batch_size=args.batch_size or defaults.batch_size,
+            lr=args.lr,
+            seed=args.seed,
+        ),
         workers=args.workers,
         seed=args.seed,
+        seeds=args.seeds,
     )
     results = run_experiment(
         args.train,
@@ -638,10 +683,25 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         settings,
         train_format=args.train_format,
         test_format=args.test_format,
+        test_same_rig=args.test_same_rig,
+        test_same_rig_format=args.test_format,
         progress=not args.quiet,
     )
     print(table(results))
-    print(json.dumps({"report": str(args.output / "report.md"), "reduction_percent": results["reduction_percent"]}))
+    print(reading_verdict(results))
+    print(metric_table(results, "mean_deg"))
+    print(reduction_table(results))
+    b = results["tests"]["test"]["bootstrap"]
+    print(
+        json.dumps(
+            {
+                "report": str(args.output / "report.md"),
+                "reduction_percent": results["reduction_percent"],
+                "interval_percent": None if b is None else [b["low"], b["high"]],
+                "steps": {k: results["runs"][k]["steps"] for k in ("original", "augmented")},
+            }
+        )
+    )
     return 0
 
 

@@ -11,6 +11,15 @@ without a face are counted and listed, not fatal.
 The face centre is the mean of the posed face model's eye and mouth corners
 (:func:`gazeaug.normalize.reference_points`); the gaze origin of the labels is
 the same point, so a perfect model has zero error.
+
+Each row of the results (``rows``, also ``errors.csv``) keeps the prediction
+and the label in the face-centre normalized frame the model predicts in:
+``pred_pitch_rad``, ``pred_yaw_rad``, ``true_pitch_rad``, ``true_yaw_rad``
+(radians, the convention of :mod:`facemesh.conventions`). The angle between
+them is the row's ``error_deg`` (a rotation keeps angles, so the camera-frame
+and face-frame errors agree). From them, ``metrics`` holds
+:func:`gazeaug.metrics.summarize`: the constant-guess error, the error
+without the model's global offset, the correlations and per-subject means.
 """
 
 from __future__ import annotations
@@ -44,6 +53,32 @@ def settings_from_meta(meta: Mapping[str, Any]) -> NormalizationSettings:
     return NormalizationSettings(**n)
 
 
+def _metrics(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """:func:`gazeaug.metrics.summarize` of the rows' face-frame predictions and labels.
+
+    None without rows, or when a prediction is not finite (the errors then say so: NaN).
+    """
+    from .metrics import summarize
+
+    if not rows:
+        return None
+    pred = np.array([[r["pred_pitch_rad"], r["pred_yaw_rad"]] for r in rows], dtype=np.float64)
+    true = np.array([[r["true_pitch_rad"], r["true_yaw_rad"]] for r in rows], dtype=np.float64)
+    if not (np.all(np.isfinite(pred)) and np.all(np.isfinite(true))):
+        return None
+    return summarize(pred, true, [str(r["subject"]) for r in rows])
+
+
+def _face_frame(pred: NDArray[np.float64], true: NDArray[np.float64]) -> dict[str, float]:
+    """A row's face-frame prediction and label: (2,) radians (pitch, yaw) each."""
+    return {
+        "pred_pitch_rad": float(pred[0]),
+        "pred_yaw_rad": float(pred[1]),
+        "true_pitch_rad": float(true[0]),
+        "true_yaw_rad": float(true[1]),
+    }
+
+
 def _summary(errors: NDArray[np.float64], subjects: NDArray[Any]) -> dict[str, Any]:
     per = {}
     for s in sorted(set(subjects.tolist())):
@@ -61,23 +96,22 @@ def _summary(errors: NDArray[np.float64], subjects: NDArray[Any]) -> dict[str, A
 def evaluate_h5(model: Any, path: str | Path) -> dict[str, Any]:
     """Errors on a normalized training-set file (angles between predicted and true gaze vectors)."""
     data = H5TrainingSet(path)
-    errs, subj = [], []
+    errs, subj, preds, trues = [], [], [], []
     for batch in data.batches(512):
         pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"])
         errs.append(angular_errors_deg(pred, batch["gaze"]))
         subj.append(batch["subject"])
+        preds.append(pred)
+        trues.append(np.asarray(batch["gaze"], dtype=np.float64))
     errors = np.concatenate(errs)
     out = _summary(errors, np.concatenate(subj))
-    out.update(
-        source=str(path),
-        kind="h5",
-        skipped=0,
-        skipped_samples=[],
-        rows=[
-            {"index": i, "subject": str(s), "error_deg": float(e)}
-            for i, (s, e) in enumerate(zip(np.concatenate(subj), errors))
-        ],
-    )
+    rows = [
+        {"index": i, "subject": str(s), "error_deg": float(e), **_face_frame(p, t)}
+        for i, (s, e, p, t) in enumerate(
+            zip(np.concatenate(subj), errors, np.concatenate(preds), np.concatenate(trues))
+        )
+    ]
+    out.update(source=str(path), kind="h5", skipped=0, skipped_samples=[], rows=rows, metrics=_metrics(rows))
     return out
 
 
@@ -85,10 +119,19 @@ def predict_image(
     model: Any, image: NDArray[np.uint8], fit: Any, settings: NormalizationSettings
 ) -> tuple[NDArray[np.float64], NormalizedSample]:
     """Gaze of one fitted face: (3,) unit vector, camera frame, from the face centre; and the normalized sample."""
+    pred, sample = _predict_normalized(model, image, fit, settings)
+    assert sample.face is not None
+    return sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred)), sample
+
+
+def _predict_normalized(
+    model: Any, image: NDArray[np.uint8], fit: Any, settings: NormalizationSettings
+) -> tuple[NDArray[np.float64], NormalizedSample]:
+    """(2,) float64 radians (pitch, yaw), face-centre normalized frame: the model's gaze; and the normalized sample."""
     sample = normalize_image(image, fit.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, settings=settings)
     assert sample.face is not None
     pred = predict_arrays(model, sample.left.image[None], sample.right.image[None], sample.face.head_pose[None])[0]
-    return sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred)), sample
+    return pred, sample
 
 
 def evaluate_dataset(
@@ -119,11 +162,12 @@ def evaluate_dataset(
         try:
             image = s.load_image()
             fit = fit_face(image, s.camera, detector, source=str(s.image_path))
-            g, sample = predict_image(model, image, fit, settings)
+            pred, sample = _predict_normalized(model, image, fit, settings)
         except (NoFaceError, PoseError, InputError, GazeAugError) as exc:
             skipped.append({"source_index": s.source_index, "image": str(s.image_path), "reason": str(exc)})
         else:
             assert sample.face is not None
+            g = sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred))
             truth = gaze_direction(sample.face.camera.reference_mm, s.gaze_target_mm, s.gaze_vector)
             assert truth is not None  # every GazeSample has a target or a vector
             err = float(angular_error_deg(g, truth))
@@ -136,6 +180,7 @@ def evaluate_dataset(
                     "image": str(s.image_path),
                     "error_deg": err,
                     "gaze_camera": np.round(g, 6).tolist(),
+                    **_face_frame(pred, sample.face.camera.gaze_pitchyaw(truth)),
                 }
             )
         if bar is not None:
@@ -149,6 +194,7 @@ def evaluate_dataset(
         skipped=len(skipped),
         skipped_samples=skipped,
         rows=rows,
+        metrics=_metrics(rows),
     )
     return out
 
