@@ -11,7 +11,7 @@ import json
 import math
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,18 @@ import numpy as np
 
 from .types import FaceMeshError
 
-__all__ = ["main", "entry", "build_parser", "error_line", "REMEDIES", "KEYPOINTS_HELP"]
+__all__ = [
+    "main",
+    "entry",
+    "run_command",
+    "console_entry",
+    "OneLineParser",
+    "finite_float",
+    "build_parser",
+    "error_line",
+    "REMEDIES",
+    "KEYPOINTS_HELP",
+]
 
 
 #: How each command line phrases an error's ``remedy`` (:class:`facemesh.types.FaceMeshError`).
@@ -48,14 +59,15 @@ def error_line(exc: BaseException) -> str:
     return f"{text}; {REMEDIES[remedy]}" if remedy in REMEDIES else text
 
 
-class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line (``facemesh CMD: error: ...``) and exit 2."""
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``PROG CMD: error: ...``) and exit 2 (both command lines)."""
 
     def error(self, message: str) -> Any:  # type: ignore[override]
+        """Print the problem on one line and exit 2 (argparse prints the usage too)."""
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _finite(text: str) -> float:
+def finite_float(text: str) -> float:
     """Argparse type: a finite float (NaN and infinities are refused)."""
     try:
         value = float(text)
@@ -70,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``facemesh`` command."""
     from . import __version__
 
-    parser = _Parser(prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF.")
+    parser = OneLineParser(prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -105,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--texture-format", choices=("png", "jpeg"), default="png", help="texture encoding inside the .glb")
     b.add_argument(
-        "--texture-margin", type=_finite, default=0.15, help="texture crop margin, fraction of the face size"
+        "--texture-margin", type=finite_float, default=0.15, help="texture crop margin, fraction of the face size"
     )
     b.add_argument("--atlas", action="store_true", help="repack the texture into a compact atlas (xatlas)")
     b.add_argument("--preview", type=Path, help="also write a picture: the mesh rendered over the photo")
@@ -116,8 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="picture of a .glb's face turned by a yaw and a pitch")
     r.add_argument("glb", type=Path)
-    r.add_argument("--yaw", type=_finite, default=0.0, help="degrees; > 0 turns the face toward the image's left")
-    r.add_argument("--pitch", type=_finite, default=0.0, help="degrees; > 0 turns the face up")
+    r.add_argument("--yaw", type=finite_float, default=0.0, help="degrees; > 0 turns the face toward the image's left")
+    r.add_argument("--pitch", type=finite_float, default=0.0, help="degrees; > 0 turns the face up")
     r.add_argument("--supersample", type=int, default=2, help="rays per pixel side")
     r.add_argument("-o", "--output", type=Path, required=True, help="output picture (.png/.jpg)")
 
@@ -146,41 +158,71 @@ def _check_outputs(args: argparse.Namespace) -> None:
 _COMMANDS: dict[str, Any] = {}
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
+def run_command(prog: str, command: Callable[[], int | None], interrupted: Callable[[], str]) -> int:
+    """Run one command the way both command lines do: outputs' warnings and errors as one line each.
+
+    Exit codes: 0 done; 2 bad input (the library's typed errors, phrased with
+    :func:`error_line`; a file the system would not read or write); 130 Ctrl-C, with
+    ``interrupted()`` saying what was kept; 1 anything unexpected (one line;
+    ``GAZEAUG_DEBUG=1`` re-raises it for the traceback).
+    """
     import os
 
+    def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        print(f"{prog}: warning: {message}", file=sys.stderr)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show
+            return command() or 0
+    except (FaceMeshError, ImportError) as exc:
+        print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file we could not read or write: the system's reason, one line
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; {interrupted()}", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
+        if os.environ.get("GAZEAUG_DEBUG"):
+            raise
+        what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
+        print(f"{prog}: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)
+        return 1
+
+
+def console_entry(main: Callable[[], int], prog: str) -> None:
+    """A console script: ``main``'s exit code; a Ctrl-C outside ``main``'s own handling is one line, 130.
+
+    Once ``main`` has returned, the work is done and its outputs are complete: a late
+    Ctrl-C (while the interpreter shuts down) is ignored rather than turned into 130.
+    """
+    import signal
+
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted before it started; nothing was written", file=sys.stderr)
+        code = 130
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # bad options (one line printed, 2), --help or --version (0)
         return exc.code if isinstance(exc.code, int) else 2
 
-    def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        print(f"facemesh: warning: {message}", file=sys.stderr)
+    def command() -> None:
+        _check_outputs(args)
+        _COMMANDS[args.command](args)
 
-    try:
-        with warnings.catch_warnings():
-            warnings.showwarning = _show
-            _check_outputs(args)
-            _COMMANDS[args.command](args)
-    except (FaceMeshError, ImportError) as exc:
-        print(f"facemesh: error: {error_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # a file we could not read or write: the system's reason, one line
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"facemesh: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("facemesh: interrupted; nothing was written (outputs are written whole or not at all)", file=sys.stderr)
-        return 130
-    except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
-        if os.environ.get("GAZEAUG_DEBUG"):
-            raise
-        what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
-        print(f"facemesh: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)
-        return 1
-    return 0
+    return run_command("facemesh", command, lambda: "nothing was written (outputs are written whole or not at all)")
 
 
 def _cmd_build(args: argparse.Namespace) -> None:
@@ -330,20 +372,8 @@ _COMMANDS.update(build=_cmd_build, info=_cmd_info, render=_cmd_render, model=_cm
 
 
 def entry() -> None:
-    """The console script: :func:`main`'s exit code; a Ctrl-C outside ``main``'s own handling is one line, 130.
-
-    Once ``main`` has returned, the work is done and its outputs are complete: a late
-    Ctrl-C (while the interpreter shuts down) is ignored rather than turned into 130.
-    """
-    import signal
-
-    try:
-        code = main()
-    except KeyboardInterrupt:
-        print("facemesh: interrupted before it started; nothing was written", file=sys.stderr)
-        code = 130
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    sys.exit(code)
+    """The ``facemesh`` console script (see :func:`console_entry`)."""
+    console_entry(main, "facemesh")
 
 
 if __name__ == "__main__":

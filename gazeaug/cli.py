@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,16 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from facemesh.cli import KEYPOINTS_HELP
+from facemesh.cli import KEYPOINTS_HELP, OneLineParser, finite_float
 
 __all__ = ["main", "entry", "build_parser"]
-
-
-class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line (``gazeaug CMD: error: ...``) and exit 2."""
-
-    def error(self, message: str) -> Any:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _positive_int(text: str) -> int:
@@ -69,17 +61,6 @@ def _seed(text: str) -> int:
     return value
 
 
-def _finite(text: str) -> float:
-    """Argparse type: a finite float (NaN and infinities are refused, as everywhere in the toolkit)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat")
     p.add_argument(
@@ -91,8 +72,8 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_normalization_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--distance", type=_finite, default=600.0, help="normalized distance d_n in mm (default 600)")
-    p.add_argument("--focal", type=_finite, default=650.0, help="normalized focal length f_n in px (default 650)")
+    p.add_argument("--distance", type=finite_float, default=600.0, help="normalized distance d_n in mm (default 600)")
+    p.add_argument("--focal", type=finite_float, default=650.0, help="normalized focal length f_n in px (default 650)")
     p.add_argument(
         "--patch-size", type=int, nargs=2, default=(60, 36), metavar=("W", "H"), help="eye patch size (default 60 36)"
     )
@@ -102,7 +83,7 @@ def _add_normalization_options(p: argparse.ArgumentParser) -> None:
 def _add_gaze_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gaze-target",
-        type=_finite,
+        type=finite_float,
         nargs=3,
         metavar=("X", "Y", "Z"),
         help="3D point looked at, mm, camera frame of the image (OpenCV: x right, y down, z forward)",
@@ -111,12 +92,16 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
 
 def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
-    g.add_argument("--yaw-mean", type=_finite, default=None, help="degrees (default 0)")
-    g.add_argument("--pitch-mean", type=_finite, default=None, help="degrees; + = camera below the face (default 30)")
-    g.add_argument("--yaw-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--pitch-var", type=_finite, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--yaw-std", type=_finite, default=None, help="standard deviation, deg (instead of --yaw-var)")
-    g.add_argument("--pitch-std", type=_finite, default=None, help="standard deviation, deg (instead of --pitch-var)")
+    g.add_argument("--yaw-mean", type=finite_float, default=None, help="degrees (default 0)")
+    g.add_argument(
+        "--pitch-mean", type=finite_float, default=None, help="degrees; + = camera below the face (default 30)"
+    )
+    g.add_argument("--yaw-var", type=finite_float, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--pitch-var", type=finite_float, default=None, help="variance, deg^2 (default 10)")
+    g.add_argument("--yaw-std", type=finite_float, default=None, help="standard deviation, deg (instead of --yaw-var)")
+    g.add_argument(
+        "--pitch-std", type=finite_float, default=None, help="standard deviation, deg (instead of --pitch-var)"
+    )
     g.add_argument("--rig", default=None, help="'wheelchair', 'screen' or a RIG.yaml (instead of the above)")
 
 
@@ -131,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     renderers = RENDERERS.names(benchmark_only=False)
     format_help = "dataset format (default: detected from the folder's layout)"
 
-    parser = _Parser(
+    parser = OneLineParser(
         prog="gazeaug",
         description="Semi-synthetic gaze dataset augmentation (face meshes: see the 'facemesh' command).",
     )
@@ -148,12 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render both eyes of a face (image or .glb) at a new head pose into an .npz")
     r.add_argument("input", nargs="?", type=Path, help="face image or facemesh .glb (default: the built-in sample)")
     r.add_argument("-o", "--output", type=Path, required=True, help="output .npz")
-    r.add_argument("--yaw", type=_finite, default=None, help="head yaw, degrees (with --pitch)")
-    r.add_argument("--pitch", type=_finite, default=None, help="head pitch, degrees (with --yaw)")
+    r.add_argument("--yaw", type=finite_float, default=None, help="head yaw, degrees (with --pitch)")
+    r.add_argument("--pitch", type=finite_float, default=None, help="head pitch, degrees (with --yaw)")
     r.add_argument("--original-pose", action="store_true", help="keep the detected head pose")
     r.add_argument("--seed", type=_seed, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
     r.add_argument(
-        "--distance-to-camera", type=_finite, default=None, help="head distance in mm (default: the photo's)"
+        "--distance-to-camera", type=finite_float, default=None, help="head distance in mm (default: the photo's)"
     )
     r.add_argument("--renderer", choices=renderers, default="raycast", help="default raycast")
     _add_input_options(r)
@@ -209,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     tv.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
     t.add_argument("--epochs", type=_positive_int, default=10)
     t.add_argument("--batch-size", type=_positive_int, default=256)
-    t.add_argument("--lr", type=_finite, default=1e-3)
+    t.add_argument("--lr", type=finite_float, default=1e-3)
     t.add_argument("--seed", type=_seed, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     t.add_argument("--model", choices=MODELS.names(), default="mobilenet_gaze", help="registered model name")
@@ -273,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument(
         "--batch-size", type=_positive_int, default=None, help="samples per step (default 256; built-in setup 32)"
     )
-    xp.add_argument("--lr", type=_finite, default=1e-3)
+    xp.add_argument("--lr", type=finite_float, default=1e-3)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
     xp.add_argument(
         "--seeds",
@@ -773,59 +758,26 @@ def _interrupted(args: argparse.Namespace) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code (2 bad input, 130 Ctrl-C, 1 anything unexpected)."""
-    import os
-
-    from facemesh.cli import error_line
-    from facemesh.types import FaceMeshError
+    from facemesh.cli import run_command
 
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # bad options (one line printed, 2), --help or --version (0)
         return exc.code if isinstance(exc.code, int) else 2
-    prog = f"gazeaug {args.command}"
 
-    def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        print(f"{prog}: warning: {message}", file=sys.stderr)
+    def command() -> int:
+        _check_outputs(args)
+        return _COMMANDS[args.command](args)
 
-    try:
-        with warnings.catch_warnings():
-            warnings.showwarning = _show
-            _check_outputs(args)
-            return _COMMANDS[args.command](args)
-    except (FaceMeshError, ImportError) as exc:
-        print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # a file we could not read or write: the system's reason, one line
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; {_interrupted(args)}", file=sys.stderr)
-        return 130
-    except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
-        if os.environ.get("GAZEAUG_DEBUG"):
-            raise
-        what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
-        print(f"{prog}: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)
-        return 1
+    return run_command(f"gazeaug {args.command}", command, lambda: _interrupted(args))
 
 
 def entry() -> None:
-    """The console script: :func:`main`'s exit code; a Ctrl-C outside ``main``'s own handling is one line, 130.
+    """The ``gazeaug`` console script (see :func:`facemesh.cli.console_entry`)."""
+    from facemesh.cli import console_entry
 
-    Once ``main`` has returned, the work is done and its outputs are complete: a late
-    Ctrl-C (while the interpreter shuts down) is ignored rather than turned into 130.
-    """
-    import signal
-
-    try:
-        code = main()
-    except KeyboardInterrupt:
-        print("gazeaug: interrupted before it started; nothing was written", file=sys.stderr)
-        code = 130
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    sys.exit(code)
+    console_entry(main, "gazeaug")
 
 
 if __name__ == "__main__":
