@@ -22,43 +22,33 @@ from facemesh.cli import KEYPOINTS_HELP, OneLineParser, finite_float
 __all__ = ["main", "entry", "build_parser"]
 
 
-def _positive_int(text: str) -> int:
-    """Argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
+def _integer(low: int, high: int | None = None) -> Any:
+    """Argparse type: an integer >= ``low`` (and <= ``high`` when given)."""
+    expected = f"an integer >= {low}" if high is None else f"an integer from {low} to {high}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
+        return value
+
+    return parse
 
 
 #: Upper bounds of counts that would only exhaust memory or processes: preview samples, worker processes.
 MAX_PREVIEW = 4096
 MAX_WORKERS = 256
 
+_positive_int = _integer(1)
+_seed = _integer(0)  # numpy's generators take no negative seeds
+
 
 def _count(maximum: int) -> Any:
     """Argparse type: an integer from 1 to ``maximum``."""
-
-    def parse(text: str) -> int:
-        value = _positive_int(text)
-        if value > maximum:
-            raise argparse.ArgumentTypeError(f"expected an integer from 1 to {maximum}, got {value}")
-        return value
-
-    return parse
-
-
-def _seed(text: str) -> int:
-    """Argparse type: a seed, an integer >= 0 (numpy's generators take no negative seeds)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    return _integer(1, maximum)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import expect_typed_error, mutations
+from helpers import expect_typed_error, mutations, unprivileged_prefix
 
 from facemesh.outputs import OutputBusyError, output_lock
 
@@ -359,19 +359,8 @@ def _writing_commands(tmp: Path, out_dir: Path, photo: Path) -> list[tuple[str, 
     ]
 
 
-def _unprivileged() -> list[str]:
-    """A command prefix that makes permissions bind (root ignores them), or skip."""
-    import shutil
-
-    if os.geteuid() != 0:
-        return []
-    if shutil.which("setpriv") is None:
-        pytest.skip("running as root without setpriv: a read-only folder cannot be made to bind")
-    return ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
-
-
 def test_read_only_folder_every_command(tmp_path, sample_jpg):
-    prefix = _unprivileged()
+    prefix = unprivileged_prefix()
     ro = tmp_path / "ro"
     ro.mkdir()
     cmds = _writing_commands(tmp_path, ro, sample_jpg)
@@ -801,7 +790,7 @@ def test_a_ctrl_c_outside_main_is_one_line_and_130(monkeypatch, capsys, prog):
 
 
 def test_unreadable_inputs_exit_2(tmp_path):
-    prefix = _unprivileged()
+    prefix = unprivileged_prefix()
     secret = tmp_path / "secret.glb"
     secret.write_bytes(b"glTF")
     os.chmod(secret, 0)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import synthetic_h5
+from helpers import synthetic_h5, unprivileged_prefix
 
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceMeshError, HeadPose, InputError
 from gazeaug.errors import GazeAugError
@@ -720,17 +720,6 @@ def test_the_silencer_restores_descriptor_2(tmp_path):
 # H. unreadable inputs
 
 
-def _unprivileged() -> list[str]:
-    """A command prefix that makes permissions bind (root ignores them), or skip."""
-    import shutil
-
-    if os.geteuid() != 0:
-        return []
-    if shutil.which("setpriv") is None:
-        pytest.skip("running as root without setpriv: an unreadable file cannot be made to bind")
-    return ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
-
-
 _LOAD_ANY = """
 import json, sys
 from facemesh.types import FaceMeshError
@@ -759,7 +748,7 @@ except Exception as exc:
     + ([("model", "secret.pt", "GazeAugError")] if __import__("importlib").util.find_spec("torch") else []),
 )
 def test_unreadable_files_are_typed_errors(tmp_path, kind, name, error):
-    prefix = _unprivileged()
+    prefix = unprivileged_prefix()
     p = tmp_path / name
     if kind == "image":
         p.write_bytes(_png(np.zeros((40, 48, 3), np.uint8)))
