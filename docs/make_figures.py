@@ -1,6 +1,7 @@
 """Draw the convention figure of docs/conventions.md.
 
-``python docs/make_figures.py`` writes docs/img/pitch_convention.png.
+``python docs/make_figures.py`` writes docs/img/pitch_convention.png, the
+simulator's pictures docs/img/simulated_rigs.png and docs/img/identities.png.
 
 Drawn from the conventions module itself (the face direction of a head pose
 pitch of +30 deg), not by hand, so the picture cannot disagree with the code.
@@ -69,6 +70,45 @@ def simulation_figure() -> None:
     print(f"wrote {SIM_OUT}")
 
 
+ID_OUT = Path(__file__).resolve().parent / "img" / "identities.png"
+
+
+def identities_figure() -> None:
+    """Normalized eye patches of simulated identities: eight from each of three photos (rows), as a model sees them."""
+    import tempfile
+    import warnings
+
+    import cv2
+
+    from facemesh.io import load_image_rgb, save_image_rgb
+    from gazeaug.datasets import open_dataset
+    from gazeaug.normalize import normalize_image
+    from gazeaug.pipeline import default_landmark_model, fit_face
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import simulate
+
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "faces"
+    faces: list[str | None] = [None] + [
+        str(shared / n) for n in ("sergey.png", "pexels/image00.jpg") if (shared / n).is_file()
+    ]
+    det = default_landmark_model()
+    warnings.simplefilter("ignore")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "sim"
+        simulate(faces, BUILTIN_RIGS["screen"], out, per_face=8, identities_per_face=8, progress=False)
+        tiles = []
+        for smp in open_dataset(out):
+            fit = fit_face(load_image_rgb(smp.image_path), smp.camera, det)
+            n = normalize_image(
+                fit.image, smp.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, gaze_target_mm=smp.gaze_target_mm
+            )
+            tiles.append(np.concatenate([n.right.image, n.left.image], axis=1))
+    rows = [np.concatenate(tiles[i : i + 8], axis=1) for i in range(0, len(tiles) - len(tiles) % 8, 8)]
+    sheet = np.concatenate(rows, axis=0)
+    save_image_rgb(ID_OUT, cv2.resize(sheet, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
+    print(f"wrote {ID_OUT}")
+
+
 def main() -> None:
     """Side view (the subject's right side; the camera frame's y down, z forward)."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
@@ -113,3 +153,4 @@ def main() -> None:
 if __name__ == "__main__":
     main()
     simulation_figure()
+    identities_figure()

@@ -188,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=_seed, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     t.add_argument("--model", choices=MODELS.names(), default="mobilenet_gaze", help="registered model name")
+    _add_train_input_options(t)
     t.add_argument("--resume", action="store_true", help="continue from the model's checkpoint")
     t.add_argument("--quiet", action="store_true")
 
@@ -210,9 +211,33 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
 
     sm = sub.add_parser("simulate", help="simulated subjects with known gaze, written as a folder dataset")
-    sm.add_argument("--faces", type=Path, nargs="*", default=None, help="face photos (default: the built-in sample)")
+    sm.add_argument(
+        "--faces",
+        type=Path,
+        nargs="*",
+        default=None,
+        help="face photos or videos (.mp4 .avi .mov .mkv .webm; well-spread frames) (default: the built-in sample)",
+    )
     sm.add_argument("--rig", default="screen", help="'screen', 'wheelchair' or a RIG.yaml (default screen)")
     sm.add_argument("--per-face", type=_positive_int, default=10, help="images per face (default 10)")
+    sm.add_argument(
+        "--identities-per-face",
+        type=_positive_int,
+        default=1,
+        help="simulated identities drawn from each face (shape, eyes, skin, glasses; default 1); "
+        "each is a subject of its own",
+    )
+    sm.add_argument(
+        "--per-video", type=_positive_int, default=8, help="frames taken from each video in --faces (default 8)"
+    )
+    sm.add_argument(
+        "--all-faces", action="store_true", help="every face of a picture with several people (default: the largest)"
+    )
+    sm.add_argument(
+        "--no-identity-variation",
+        action="store_true",
+        help="no identity draws: every subject looks like its photo (only the eye-axis offset is drawn)",
+    )
     sm.add_argument("--seed", type=_seed, default=0)
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing dataset folder that simulate wrote")
@@ -249,6 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--batch-size", type=_positive_int, default=None, help="samples per step (default 256; built-in setup 32)"
     )
     xp.add_argument("--lr", type=finite_float, default=1e-3)
+    _add_train_input_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
     xp.add_argument(
         "--seeds",
@@ -506,11 +532,41 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_train_input_options(p: argparse.ArgumentParser) -> None:
+    """``--no-augment`` and ``--input``: the training-time augmentation and the model's input mode."""
+    p.add_argument(
+        "--no-augment",
+        action="store_true",
+        help="no training-time augmentation (shifts, blur, colour, contrast, brightness, gamma, noise; "
+        "on by default, see docs/model.md)",
+    )
+    p.add_argument(
+        "--input",
+        default="rgb",
+        metavar="{rgb,grey_equalized}",
+        help="the model's input: rgb (default) or grey_equalized (grey + histogram equalization, as MPIIGaze; "
+        "recorded in the model and applied by predict, evaluate)",
+    )
+
+
+def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The TrainSettings keywords of :func:`_add_train_input_options` (checked by TrainSettings)."""
+    from .train_augment import TrainAugment
+
+    return {"augment": TrainAugment(enabled=not args.no_augment), "input_mode": args.input}
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from .train import TrainSettings, train
 
     settings = TrainSettings(
-        model=args.model, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed, device=args.device
+        model=args.model,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        seed=args.seed,
+        device=args.device,
+        **_train_input_settings(args),
     )
     log = train(
         args.train,
@@ -592,7 +648,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .sampling import load_rig
-    from .simulate import simulate
+    from .simulate import SimSettings, simulate
 
     faces = list(args.faces) if args.faces else [None]
     summary = simulate(
@@ -603,8 +659,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=not args.quiet,
         overwrite=args.overwrite,
+        identities_per_face=args.identities_per_face,
+        per_video=args.per_video,
+        all_faces=args.all_faces,
+        settings=SimSettings(vary_identity=not args.no_identity_variation),
     )
-    print(json.dumps({k: summary[k] for k in ("output", "images", "faces")}))
+    print(json.dumps({k: summary[k] for k in ("output", "images", "faces", "subjects")}))
     return 0
 
 
@@ -646,6 +706,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
             batch_size=args.batch_size or defaults.batch_size,
             lr=args.lr,
             seed=args.seed,
+            **_train_input_settings(args),
         ),
         workers=args.workers,
         seed=args.seed,

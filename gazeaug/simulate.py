@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from facemesh.conventions import look_at_rotation, rotation_from_yaw_pitch, vector_to_pitchyaw
+from facemesh.conventions import look_at_rotation, rotation_from_yaw_pitch, uv_to_pixels, vector_to_pitchyaw
 from facemesh.render import (
     BilinearTextureShader,
     RayCaster,
@@ -47,28 +47,86 @@ from facemesh.render import (
 from .errors import GazeAugError
 from .sampling import Rig
 
-__all__ = ["SimSettings", "SimSubject", "SimFrame", "simulate", "eye_contours"]
+__all__ = [
+    "SimSettings",
+    "SubjectDraw",
+    "Glasses",
+    "IRIS_PALETTE",
+    "draw_subject",
+    "PhotoFace",
+    "SimSubject",
+    "SimFrame",
+    "simulate",
+    "eye_contours",
+]
+
+
+#: Iris colours (RGB) the identity draw picks from: dark brown, brown, amber, hazel, green, blue,
+#: grey-blue, grey (each then varied by +-20 %).
+IRIS_PALETTE: tuple[tuple[float, float, float], ...] = (
+    (52.0, 34.0, 24.0),
+    (92.0, 58.0, 34.0),
+    (128.0, 88.0, 48.0),
+    (108.0, 98.0, 58.0),
+    (84.0, 108.0, 72.0),
+    (82.0, 112.0, 148.0),
+    (108.0, 122.0, 138.0),
+    (98.0, 98.0, 98.0),
+)
 
 
 @dataclass(frozen=True)
 class SimSettings:
     """How subjects are built and images varied.
 
+    With ``vary_identity`` (the default) every simulated subject draws its own
+    identity (:class:`SubjectDraw`) from the ranges below; without it every
+    subject uses the fixed values (the simulator before identities: one look
+    per photo, only kappa drawn).
+
     Attributes:
-        eyeball_radius_mm: sphere radius (default 12).
-        eyeball_depth_mm: how far the sphere's centre lies behind the eye contour's centre (default 10.5).
-        iris_radius_mm: iris radius on the sphere (default 6).
-        pupil_radius_mm: pupil radius (default 2).
+        eyeball_radius_mm: sphere radius without identity draws (default 12).
+        eyeball_depth_mm: how far the sphere's centre lies behind the eye contour's centre, for a
+            12 mm eyeball (default 10.5); a drawn radius moves the centre by the difference.
+        iris_radius_mm: iris radius on the sphere without identity draws (default 6).
+        pupil_radius_mm: pupil radius without identity draws (default 2).
         hole_scale: the eye opening is shrunk to this fraction about its centre, so that
             less sclera shows than MediaPipe's contour would (default 0.92).
         lid_follow_mm: upper-lid travel at 90 deg of vertical gaze, times sin(pitch) (default 7).
         lower_lid_follow_mm: lower-lid travel likewise (default 2).
-        kappa_deg: standard deviation of the per-subject angle between visual and optical axis
-            (default 5; 0 disables).
+        kappa_deg: standard deviation of the per-subject angle between visual and optical axis, per
+            axis (default 2.0; 0 disables the angle, mean included). Measured angle kappa is about
+            5 deg horizontally and 1-2 deg vertically on average with a spread of about 2 deg between
+            people; only the spread is a per-person error a person-independent model cannot learn
+            (the first simulator drew 5 deg of spread around 0: a floor of 6.3 deg of mean error).
+        kappa_mean_deg: the mean (horizontal, vertical) angle (default (5.0, 1.5)), turned as
+            :meth:`SimSubject.optical_axis` turns it (mirror-symmetric between the eyes).
         brightness: range of the brightness factor (default 0.8-1.2).
         blur_sigma_px: range of the Gaussian blur (default 0-1.0 px).
         noise_sigma: range of the Gaussian noise, grey levels (default 0-4).
         jpeg_quality: range of the JPEG quality (default 60-95).
+        vary_identity: draw an identity per subject (default True).
+        shape_sd: scale of the shape-space coefficients, N(0, shape_sd^2) each (default 1.0; see
+            :mod:`facemesh.face_models.shape_space`).
+        head_scale_sd: standard deviation of the overall head size factor (default 0.05).
+        eyeball_radius_range_mm: drawn eyeball radius (default 11.5-13).
+        iris_radius_range_mm: drawn iris radius (default 5.5-6.4).
+        pupil_radius_range_mm: drawn pupil radius (default 1.3-3.2).
+        hole_scale_range: drawn eye-opening scale (default 0.84-0.98).
+        lid_drop_range_mm: the upper lid lowered by this much at its middle (default 0-1.8): how much
+            of the iris the lid covers.
+        photo_iris_share: share of subjects keeping the photo's own iris colour (default 0.3); the
+            others draw from :data:`IRIS_PALETTE`.
+        skin_gain_sd: standard deviation of the skin tone's log gain (default 0.15; red, green and blue
+            move 0.75, 1 and 1.3 times as much), plus 0.03 per channel.
+        sclera_over_skin: the sclera's brightness over the skin's around the eyes (default 1.1-1.6;
+            in webcam pictures the sclera is rarely white).
+        glasses_share: share of subjects with glasses (default 0.25).
+        relight: re-light the face per image from the mesh normals (default True), after dividing
+            the photo's own shading out as far as a low-pass model allows (``delight`` strength,
+            default 0.6).
+        ambient_range: the drawn ambient share of the light (default 0.35-0.8).
+        specular_range: the corneal highlight's strength, grey levels (default 0-160).
     """
 
     eyeball_radius_mm: float = 12.0
@@ -78,11 +136,145 @@ class SimSettings:
     hole_scale: float = 0.92
     lid_follow_mm: float = 7.0
     lower_lid_follow_mm: float = 2.0
-    kappa_deg: float = 5.0
+    kappa_deg: float = 2.0
+    kappa_mean_deg: tuple[float, float] = (5.0, 1.5)
     brightness: tuple[float, float] = (0.8, 1.2)
     blur_sigma_px: tuple[float, float] = (0.0, 1.0)
     noise_sigma: tuple[float, float] = (0.0, 4.0)
     jpeg_quality: tuple[int, int] = (60, 95)
+    vary_identity: bool = True
+    shape_sd: float = 1.0
+    head_scale_sd: float = 0.05
+    eyeball_radius_range_mm: tuple[float, float] = (11.5, 13.0)
+    iris_radius_range_mm: tuple[float, float] = (5.5, 6.4)
+    pupil_radius_range_mm: tuple[float, float] = (1.3, 3.2)
+    hole_scale_range: tuple[float, float] = (0.84, 0.98)
+    lid_drop_range_mm: tuple[float, float] = (0.0, 1.8)
+    photo_iris_share: float = 0.3
+    skin_gain_sd: float = 0.15
+    sclera_over_skin: tuple[float, float] = (1.1, 1.6)
+    glasses_share: float = 0.25
+    relight: bool = True
+    delight: float = 0.6
+    ambient_range: tuple[float, float] = (0.35, 0.8)
+    specular_range: tuple[float, float] = (0.0, 160.0)
+
+
+@dataclass(frozen=True)
+class Glasses:
+    """A glasses frame: two rounded-rectangle rims and a bridge, in front of the eyes.
+
+    Attributes:
+        half_width_mm: half the width of one rim (default 25).
+        half_height_mm: half its height (default 17).
+        rim_mm: the rim's width as seen from the front.
+        distance_mm: how far in front of the eye contours' centres the frame sits (head frame -z).
+        drop_mm: how far below the eye centres the rims' centres lie (head frame +y).
+        rgb: the frame's colour.
+    """
+
+    half_width_mm: float = 25.0
+    half_height_mm: float = 17.0
+    rim_mm: float = 2.5
+    distance_mm: float = 14.0
+    drop_mm: float = 2.0
+    rgb: tuple[float, float, float] = (25.0, 22.0, 20.0)
+
+
+@dataclass(frozen=True)
+class SubjectDraw:
+    """One simulated identity: what was drawn for it (recorded in ``simulation.jsonl``).
+
+    Attributes:
+        shape_coefficients: (K,) coefficients of the shape space (in standard deviations).
+        head_scale: factor on the whole head about the eyes' midpoint.
+        eyeball_radius_mm, iris_radius_mm, pupil_radius_mm: the eyes (both alike).
+        hole_scale: the eye opening's scale about its centre.
+        lid_drop_mm: the upper lid lowered by this much at its middle.
+        kappa_deg: (horizontal, vertical) angle of the optical axis from the visual axis, degrees.
+        iris_rgb: RGB of the iris, or None: the photo's own (measured per eye).
+        sclera_rgb: the sclera's colour relative to the skin around the eyes (a factor per channel;
+            see ``SimSettings.sclera_over_skin``).
+        skin_gain: (3,) colour gains of the face's texture.
+        iris_pattern: seed of the iris's radial streaks.
+        glasses: the frame, or None.
+    """
+
+    shape_coefficients: tuple[float, ...] = ()
+    head_scale: float = 1.0
+    eyeball_radius_mm: float = 12.0
+    iris_radius_mm: float = 6.0
+    pupil_radius_mm: float = 2.0
+    hole_scale: float = 0.92
+    lid_drop_mm: float = 0.0
+    kappa_deg: tuple[float, float] = (0.0, 0.0)
+    iris_rgb: tuple[float, float, float] | None = None
+    sclera_rgb: tuple[float, float, float] | None = None
+    skin_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    iris_pattern: int = 0
+    glasses: Glasses | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        from dataclasses import asdict
+
+        return asdict(self)
+
+
+def draw_subject(settings: SimSettings, rng: np.random.Generator) -> SubjectDraw:
+    """An identity drawn from ``settings``' ranges (the fixed values when ``vary_identity`` is off)."""
+    s = settings
+    k2 = np.asarray(s.kappa_mean_deg, dtype=np.float64) + s.kappa_deg * rng.standard_normal(2)
+    kappa = (float(k2[0]), float(k2[1])) if s.kappa_deg > 0 else (0.0, 0.0)
+    if not s.vary_identity:
+        return SubjectDraw(
+            eyeball_radius_mm=s.eyeball_radius_mm,
+            iris_radius_mm=s.iris_radius_mm,
+            pupil_radius_mm=s.pupil_radius_mm,
+            hole_scale=s.hole_scale,
+            kappa_deg=(kappa[0], kappa[1]),
+        )
+    from facemesh.face_models.shape_space import shape_space
+
+    k = shape_space().num_components
+    coeffs = tuple(float(v) for v in s.shape_sd * rng.standard_normal(k))
+    iris: tuple[float, float, float] | None = None
+    if rng.uniform() >= s.photo_iris_share:
+        base = np.asarray(IRIS_PALETTE[int(rng.integers(len(IRIS_PALETTE)))])
+        c = base * rng.uniform(0.8, 1.2) * rng.uniform(0.92, 1.08, 3)
+        iris = (float(c[0]), float(c[1]), float(c[2]))
+    sclera = np.array([1.0, 0.965, 0.93]) * rng.uniform(*s.sclera_over_skin) + rng.normal(0.0, 0.015, 3)
+    # skin tone along a natural axis (darker skin loses more blue than red), plus a little per channel
+    tone = rng.standard_normal()
+    gain = np.exp(s.skin_gain_sd * tone * np.array([0.75, 1.0, 1.3]) + rng.normal(0.0, 0.03, 3))
+    glasses = None
+    if rng.uniform() < s.glasses_share:
+        dark = rng.uniform() < 0.6
+        rgb = rng.uniform(10, 45, 3) if dark else rng.uniform(60, 200) * rng.uniform(0.85, 1.15, 3)
+        glasses = Glasses(
+            half_width_mm=float(rng.uniform(21, 28)),
+            half_height_mm=float(rng.uniform(13, 20)),
+            rim_mm=float(rng.uniform(1.2, 4.0)),
+            distance_mm=float(rng.uniform(12, 17)),
+            drop_mm=float(rng.uniform(0, 4)),
+            rgb=(float(rgb[0]), float(rgb[1]), float(rgb[2])),
+        )
+    eyeball = float(rng.uniform(*s.eyeball_radius_range_mm))
+    return SubjectDraw(
+        shape_coefficients=coeffs,
+        head_scale=float(np.exp(s.head_scale_sd * rng.standard_normal())),
+        eyeball_radius_mm=eyeball,
+        iris_radius_mm=float(rng.uniform(*s.iris_radius_range_mm)),
+        pupil_radius_mm=float(rng.uniform(*s.pupil_radius_range_mm)),
+        hole_scale=float(rng.uniform(*s.hole_scale_range)),
+        lid_drop_mm=float(rng.uniform(*s.lid_drop_range_mm)),
+        kappa_deg=(kappa[0], kappa[1]),
+        iris_rgb=iris,
+        sclera_rgb=(float(sclera[0]), float(sclera[1]), float(sclera[2])),
+        skin_gain=(float(gain[0]), float(gain[1]), float(gain[2])),
+        iris_pattern=int(rng.integers(2**31)),
+        glasses=glasses,
+    )
 
 
 def eye_contours() -> dict[str, list[int]]:
@@ -125,6 +317,8 @@ class SimFrame:
         optical_axes: {"left", "right"}: (3,) camera-frame unit vectors of the rendered eyeballs.
         eyeball_centres_mm: {"left", "right"}: (3,) camera-frame centres of the eyeballs.
         coverage: fraction of pixels showing the face (the rest is background).
+        light: the image's light (camera frame direction toward the light, ambient share, specular
+            strength), or None when unlit.
     """
 
     image: NDArray[np.uint8]
@@ -134,56 +328,185 @@ class SimFrame:
     optical_axes: dict[str, NDArray[np.float64]]
     eyeball_centres_mm: dict[str, NDArray[np.float64]]
     coverage: float
+    light: dict[str, Any] | None = None
 
 
-class SimSubject:
-    """A subject built from one face photo (see the module docstring).
+@dataclass(frozen=True)
+class PhotoFace:
+    """What one face photo gives every identity drawn from it (built once per photo).
 
-    Args:
-        image: (H, W, 3) uint8 RGB face photo.
-        detector: a MediaPipe landmark model (478 points: the iris landmarks give the iris colour).
-        name: subject id.
-        settings: see :class:`SimSettings`.
-        rng: random generator (the per-subject kappa offset).
-        source: where the photo came from (its path), named in errors; default ``name``.
+    Attributes:
+        source: the photo's name (its path), named in errors and in ``simulation.jsonl``.
+        head_mm: (V, 3) float64, mm, head frame: the photo's mesh with its background rings
+            (the first ``num_face_vertices`` are the landmarks, vertex index = landmark index).
+        triangles: (M, 3) uint32: the mesh's triangles without those closing the eye openings.
+        uv: (V, 2) float64 glTF texture coordinates.
+        texture: (h, w, 3) uint8 RGB: the photo's texture.
+        num_face_vertices: N, the landmark vertices.
+        ring_parent: (V - N,) int64: the face vertex each ring vertex follows.
+        iris_rgb: {"left", "right"}: (3,) float64 RGB measured in the photo.
     """
 
-    def __init__(
-        self,
-        image: NDArray[np.uint8],
-        detector: Any,
-        name: str,
-        settings: SimSettings,
-        rng: np.random.Generator,
-        source: str | None = None,
-    ):
+    source: str
+    head_mm: NDArray[np.float64]
+    triangles: NDArray[np.uint32]
+    uv: NDArray[np.float64]
+    texture: NDArray[np.uint8]
+    num_face_vertices: int
+    ring_parent: NDArray[np.int64]
+    iris_rgb: dict[str, NDArray[np.float64]]
+
+    @classmethod
+    def from_image(cls, image: NDArray[np.uint8], detector: Any, source: str = "image") -> PhotoFace:
+        """Detect, fit and mesh the largest face of ``image`` ((H, W, 3) uint8 RGB).
+
+        Raises:
+            GazeAugError: fewer than MediaPipe's 478 landmarks (the iris points are needed);
+            the errors of :func:`gazeaug.pipeline.fit_face`.
+        """
         from facemesh.camera import camera_for_image
 
         from .pipeline import fit_face, mesh_for_fit
-        from .render.base import render_mesh
+        from .render.base import _boundary_loops, render_mesh
 
-        self.name = name
-        self.settings = s = settings
         h, w = image.shape[:2]
-        where = source or name
-        fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=where)
+        fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=source)
         if fit.landmarks.num_points < 478:
-            raise GazeAugError(f"{where}: the simulator needs MediaPipe's 478 landmarks (with the iris points)")
+            raise GazeAugError(f"{source}: the simulator needs MediaPipe's 478 landmarks (with the iris points)")
         mesh = mesh_for_fit(fit)
         rm = render_mesh(mesh)
         r, t = mesh.pose.rotation, mesh.pose.translation_mm
         head = (rm.vertices_mm - t) @ r  # every vertex (face + rings) in the head frame
-        self.contours = eye_contours()
         tri = np.asarray(rm.triangles)
+        n = rm.num_face_vertices
         drop = np.zeros(len(tri), dtype=bool)
+        for loop in eye_contours().values():
+            drop |= np.isin(tri, np.asarray(loop)).all(axis=1)  # the triangles that close the eye opening
+        # ring vertex n + k m + j follows the outer contour's j-th vertex (see render_mesh)
+        extra = len(head) - n
+        parent = np.zeros(0, dtype=np.int64)
+        if extra:
+            loops = _boundary_loops(np.asarray(mesh.triangles, dtype=np.int64).tobytes())
+            outer = np.asarray(max(loops, key=lambda lp: float(np.ptp(head[lp], axis=0).sum())), dtype=np.int64)
+            parent = np.tile(outer, extra // len(outer))
+        iris = {side: _iris_colour(image, fit.landmarks.points_px, side) for side in ("left", "right")}
+        return cls(
+            source,
+            head,
+            tri[~drop].astype(np.uint32),
+            np.asarray(rm.uv),
+            np.ascontiguousarray(rm.texture),
+            n,
+            parent,
+            iris,
+        )
+
+
+def _iris_colour(image: NDArray[np.uint8], points: NDArray[np.float64], side: str) -> NDArray[np.float64]:
+    """Median colour of the iris ring (between 45% and 90% of the iris radius) in the photo."""
+    centre_i, ring = (473, [474, 475, 476, 477]) if side == "left" else (468, [469, 470, 471, 472])
+    c = points[centre_i]
+    rad = float(np.linalg.norm(points[ring] - c, axis=1).mean())
+    h, w = image.shape[:2]
+    x0, x1 = max(0, int(c[0] - rad) - 1), min(w, int(c[0] + rad) + 2)
+    y0, y1 = max(0, int(c[1] - rad) - 1), min(h, int(c[1] + rad) + 2)
+    ys, xs = np.mgrid[y0:y1, x0:x1]
+    d = np.hypot(xs - c[0], ys - c[1])
+    sel = (d > 0.45 * rad) & (d < 0.9 * rad)
+    if sel.sum() < 4:
+        return np.array([90.0, 70.0, 50.0])
+    return np.asarray(np.median(image[y0:y1, x0:x1][sel].astype(np.float64), axis=0))
+
+
+def _delit(texture: NDArray[np.uint8], strength: float) -> NDArray[np.float64]:
+    """The texture divided by its low-pass luminance (relative to the median) to the power ``strength``.
+
+    A simple model of the photo's baked shading: broad light and shadow are
+    low-frequency in luminance; dividing them out leaves the skin's colour and
+    detail, which the simulator re-lights per image.
+    """
+    import cv2
+
+    tex = texture.astype(np.float64)
+    if strength <= 0:
+        return tex
+    y = tex @ np.array([0.299, 0.587, 0.114])
+    sigma = 0.08 * max(texture.shape[:2])
+    low = np.asarray(cv2.GaussianBlur(y, (0, 0), sigma), dtype=np.float64)
+    shading = np.clip(low / max(float(np.median(low)), 1.0), 0.35, 2.5)
+    return np.asarray(np.clip(tex / shading[..., None] ** strength, 0.0, 255.0))
+
+
+def _glasses_mesh(
+    eye_centres: dict[str, NDArray[np.float64]], g: Glasses
+) -> tuple[NDArray[np.float64], NDArray[np.uint32]]:
+    """(V, 3) float64 head-frame vertices (mm) and (M, 3) triangles of a glasses frame (rims and bridge)."""
+    m = 48
+    ang = np.linspace(0.0, 2 * np.pi, m, endpoint=False)
+    cos, sin = np.cos(ang), np.sin(ang)
+    # a superellipse (exponent 4): a rounded rectangle
+    ux = np.sign(cos) * np.abs(cos) ** 0.5
+    uy = np.sign(sin) * np.abs(sin) ** 0.5
+    verts, tris = [], []
+    base = 0
+    for c in eye_centres.values():
+        centre = np.array([c[0], c[1] + g.drop_mm, c[2] - g.distance_mm])
+        for a, b in ((g.half_width_mm, g.half_height_mm), (g.half_width_mm + g.rim_mm, g.half_height_mm + g.rim_mm)):
+            verts.append(centre + np.stack([a * ux, b * uy, np.zeros(m)], axis=1))
+        i = base + np.arange(m)
+        o = base + m + np.arange(m)
+        tris += [np.stack([i, np.roll(i, -1), np.roll(o, -1)], 1), np.stack([i, np.roll(o, -1), o], 1)]
+        base += 2 * m
+    cs = sorted(eye_centres.values(), key=lambda c: float(c[0]))
+    x0 = cs[0][0] + g.half_width_mm + g.rim_mm / 2
+    x1 = cs[1][0] - g.half_width_mm - g.rim_mm / 2
+    y = 0.5 * (cs[0][1] + cs[1][1]) + g.drop_mm - 0.35 * g.half_height_mm
+    z = 0.5 * (cs[0][2] + cs[1][2]) - g.distance_mm
+    if x1 > x0:
+        verts.append(np.array([[x0, y, z], [x1, y, z], [x1, y + g.rim_mm, z], [x0, y + g.rim_mm, z]]))
+        tris.append(np.array([[base, base + 1, base + 2], [base, base + 2, base + 3]]))
+    return np.concatenate(verts), np.concatenate(tris).astype(np.uint32)
+
+
+class SimSubject:
+    """A simulated subject: one photo's face (:class:`PhotoFace`) with one identity (:class:`SubjectDraw`).
+
+    The drawn shape (the shape space's offset, then the head scale about the
+    eyes' midpoint) moves every vertex, the rings with the contour vertex they
+    follow; the texture stays the photo's (through the shared topology), with
+    the photo's shading divided out (``settings.delight``) and the skin gain.
+
+    Args:
+        photo: the photo's face.
+        name: subject id.
+        settings: see :class:`SimSettings`.
+        draw: the identity (see :func:`draw_subject`).
+    """
+
+    def __init__(self, photo: PhotoFace, name: str, settings: SimSettings, draw: SubjectDraw):
+        from facemesh.face_models.shape_space import shape_space
+
+        self.name = name
+        self.photo = photo
+        self.settings = s = settings
+        self.draw = d = draw
+        n = photo.num_face_vertices
+        head = photo.head_mm.copy()
+        if d.shape_coefficients:
+            offset = shape_space().offset_mm(np.asarray(d.shape_coefficients))
+            if len(offset) == n:
+                head[:n] += offset
+                head[n:] += offset[photo.ring_parent]
+        head *= d.head_scale
+        self.contours = eye_contours()
         self.eye_centre: dict[str, NDArray[np.float64]] = {}
         self.lid_weight = np.zeros((len(head), 2))  # (upper, lower) travel weights per vertex
+        depth = s.eyeball_depth_mm + (d.eyeball_radius_mm - 12.0)
         for side, loop in self.contours.items():
             ids = np.asarray(loop)
-            drop |= np.isin(tri, ids).all(axis=1)  # the triangles that close the eye opening
             c = head[ids].mean(axis=0)
-            head[ids, :2] = c[:2] + (head[ids, :2] - c[:2]) * s.hole_scale
-            self.eye_centre[side] = c + np.array([0.0, 0.0, s.eyeball_depth_mm])
+            head[ids, :2] = c[:2] + (head[ids, :2] - c[:2]) * d.hole_scale
+            self.eye_centre[side] = c + np.array([0.0, 0.0, depth])
             # lid weights: 1 in the middle of the lid, 0 at the corners; upper = above the corner line
             corners = head[[ids[np.argmin(head[ids, 0])], ids[np.argmax(head[ids, 0])]]]
             span = corners[1, 0] - corners[0, 0]
@@ -191,32 +514,48 @@ class SimSubject:
                 u = np.clip((head[i, 0] - corners[0, 0]) / span, 0.0, 1.0)
                 line_y = corners[0, 1] + u * (corners[1, 1] - corners[0, 1])
                 self.lid_weight[i, 0 if head[i, 1] < line_y else 1] = math.sin(math.pi * u)
+        head[:, 1] += d.lid_drop_mm * self.lid_weight[:, 0]  # a lower upper lid covers more of the iris
         self.head = head
-        self.triangles = tri[~drop].astype(np.uint32)
-        self.texture = np.ascontiguousarray(rm.texture)
+        self.triangles = photo.triangles
+        tex = _delit(photo.texture, s.delight if s.relight else 0.0) * np.asarray(d.skin_gain)
+        self.texture = np.ascontiguousarray(np.clip(np.round(tex), 0, 255).astype(np.uint8))
         th, tw = self.texture.shape[:2]
-        self.face_shader = BilinearTextureShader(self.texture, TexelTable(rm.uv, self.triangles, (tw, th)))
-        self.iris_colour = {side: self._iris_colour(image, fit.landmarks.points_px, side) for side in ("left", "right")}
-        k = np.radians(s.kappa_deg) * rng.standard_normal(2) if s.kappa_deg > 0 else np.zeros(2)
-        self.kappa_rad = k  # (horizontal, vertical) offset of the optical axis from the visual axis
+        self.face_shader = BilinearTextureShader(self.texture, TexelTable(photo.uv, self.triangles, (tw, th)))
+        # the sclera, relative to the skin around the eyes (the lids' texture)
+        lids = np.concatenate([np.asarray(loop) for loop in self.contours.values()])
+        px = uv_to_pixels(photo.uv[lids], (tw, th))
+        xi = np.clip(np.round(px[:, 0]).astype(int), 0, tw - 1)
+        yi = np.clip(np.round(px[:, 1]).astype(int), 0, th - 1)
+        skin = float(np.median(self.texture[yi, xi].astype(np.float64) @ np.array([0.299, 0.587, 0.114])))
+        if d.sclera_rgb is None:
+            self.sclera_rgb: tuple[float, float, float] = (232.0, 226.0, 220.0)
+        else:
+            sc = np.clip(skin * np.asarray(d.sclera_rgb), 60.0, 240.0)
+            self.sclera_rgb = (float(sc[0]), float(sc[1]), float(sc[2]))
+        self.iris_colour = {
+            side: (np.asarray(d.iris_rgb, dtype=np.float64) if d.iris_rgb is not None else photo.iris_rgb[side])
+            for side in ("left", "right")
+        }
+        self.kappa_rad = np.radians(np.asarray(d.kappa_deg, dtype=np.float64))  # (horizontal, vertical)
         o3d = import_open3d()
-        sphere = o3d.geometry.TriangleMesh.create_sphere(radius=s.eyeball_radius_mm, resolution=24)
+        sphere = o3d.geometry.TriangleMesh.create_sphere(radius=d.eyeball_radius_mm, resolution=24)
         self._sphere_v = np.asarray(sphere.vertices)
         self._sphere_t = np.asarray(sphere.triangles).astype(np.uint32)
+        self.glasses = _glasses_mesh(self.eye_centre, d.glasses) if d.glasses is not None else None
 
-    @staticmethod
-    def _iris_colour(image: NDArray[np.uint8], points: NDArray[np.float64], side: str) -> NDArray[np.float64]:
-        """Median colour of the iris ring (between 45% and 90% of the iris radius) in the photo."""
-        centre_i, ring = (473, [474, 475, 476, 477]) if side == "left" else (468, [469, 470, 471, 472])
-        c = points[centre_i]
-        rad = float(np.linalg.norm(points[ring] - c, axis=1).mean())
-        h, w = image.shape[:2]
-        ys, xs = np.mgrid[0:h, 0:w]
-        d = np.hypot(xs - c[0], ys - c[1])
-        sel = (d > 0.45 * rad) & (d < 0.9 * rad)
-        if sel.sum() < 4:
-            return np.array([90.0, 70.0, 50.0])
-        return np.median(image[sel].astype(np.float64), axis=0)
+    @classmethod
+    def from_image(
+        cls,
+        image: NDArray[np.uint8],
+        detector: Any,
+        name: str,
+        settings: SimSettings,
+        rng: np.random.Generator,
+        source: str | None = None,
+    ) -> SimSubject:
+        """A subject from a face photo ((H, W, 3) uint8 RGB), its identity drawn with ``rng``."""
+        photo = PhotoFace.from_image(image, detector, source or name)
+        return cls(photo, name, settings, draw_subject(settings, rng))
 
     def optical_axis(self, side: str, target_head: NDArray[np.float64]) -> NDArray[np.float64]:
         """Head-frame unit vector of an eyeball's optical axis when it fixates ``target_head`` (mm, head frame)."""
@@ -241,9 +580,9 @@ class SimSubject:
         """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame)."""
         import cv2
 
-        from .render.shaders import EyeballShader
+        from .render.shaders import EyeballShader, FlatShader, Light, LitShader, vertex_normals
 
-        s = self.settings
+        s, d = self.settings, self.draw
         r, t = np.asarray(head_rotation), np.asarray(head_translation_mm)
         target_head = r.T @ (np.asarray(target_mm) - t)
         axes = {side: self.optical_axis(side, target_head) for side in ("left", "right")}
@@ -253,20 +592,49 @@ class SimSubject:
         v[:, 1] -= math.sin(pitch) * (
             s.lid_follow_mm * self.lid_weight[:, 0] + s.lower_lid_follow_mm * self.lid_weight[:, 1]
         )
-        # one scene: the face (mesh 0) and both eyeballs (meshes 1, 2), each with its shader
-        caster = RayCaster([((v @ r.T + t), self.triangles)])
+        light = None
+        if s.relight:
+            # camera frame (y down, z forward): a light in front of the face, mostly from above
+            ldir = np.array([rng.normal(0.0, 0.6), rng.normal(-0.4, 0.4), -1.0])
+            light = Light(
+                ldir / np.linalg.norm(ldir),
+                float(rng.uniform(*s.ambient_range)),
+                specular=float(rng.uniform(*s.specular_range)),
+            )
+        # one scene: the face (mesh 0), both eyeballs, the glasses, each with its shader
+        posed = v @ r.T + t
+        caster = RayCaster([(posed, self.triangles)])
         shaders: dict[int, Shader] = {0: self.face_shader}
+        if light is not None:
+            normals = vertex_normals(posed, self.triangles)
+            if float(np.mean(np.einsum("ij,ij->i", normals, -posed))) < 0:  # point them toward the camera
+                normals = -normals
+            shaders[0] = LitShader(self.face_shader, normals, self.triangles, light)
+        up = r @ np.array([0.0, -1.0, 0.0])
         for side in ("left", "right"):
             c = r @ self.eye_centre[side] + t
             eye_id = caster.add_mesh(self._sphere_v + c, self._sphere_t)
             shaders[eye_id] = EyeballShader(
                 centre_mm=c,
                 optical_axis=r @ axes[side],
-                radius_mm=s.eyeball_radius_mm,
-                iris_radius_mm=s.iris_radius_mm,
-                pupil_radius_mm=s.pupil_radius_mm,
+                radius_mm=d.eyeball_radius_mm,
+                iris_radius_mm=d.iris_radius_mm,
+                pupil_radius_mm=d.pupil_radius_mm,
                 iris_rgb=self.iris_colour[side],
+                sclera_rgb=self.sclera_rgb,
+                limbus_soft_deg=3.0 if s.vary_identity else 0.0,
+                iris_streaks=0.25 if s.vary_identity else 0.0,
+                pattern_seed=d.iris_pattern + (side == "left"),
+                up=up,
+                lid_shadow=0.35 if s.vary_identity else 0.0,
+                light=light,
             )
+        if self.glasses is not None and d.glasses is not None:
+            gv, gt = self.glasses
+            gposed = gv @ r.T + t
+            gid = caster.add_mesh(gposed, gt)
+            gn = np.tile(-r[:, 2], (len(gv), 1))  # the frame faces forward (head -z)
+            shaders[gid] = FlatShader(d.glasses.rgb, gn, gt, light)
         w, h = size_wh
         rays = camera_rays(np.linalg.inv(camera_matrix), np.zeros(3), (w, h))
         fragments = caster.trace(rays)
@@ -294,6 +662,9 @@ class SimSubject:
             optical_axes={k: r @ a for k, a in axes.items()},
             eyeball_centres_mm={k: r @ c + t for k, c in self.eye_centre.items()},
             coverage=float(face.mean()),
+            light=None
+            if light is None
+            else {"direction": light.direction.tolist(), "ambient": light.ambient, "specular": light.specular},
         )
 
 
@@ -322,6 +693,9 @@ def simulate(
     settings: SimSettings | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    identities_per_face: int = 1,
+    per_video: int = 8,
+    all_faces: bool = False,
 ) -> dict[str, Any]:
     """Write a simulated dataset in the folder format (images, ``labels.csv``, ``simulation.jsonl``).
 
@@ -330,14 +704,22 @@ def simulate(
     interrupted run leaves ``out_dir`` as it was.
 
     Args:
-        faces: face photos (None: the built-in astronaut).
+        faces: face photos (None: the built-in astronaut), video files (``per_video`` frames spread
+            in head pose, each a face of its own; see :func:`gazeaug.faces.face_sources`), or
+            :class:`gazeaug.faces.FaceSource` pictures.
         rig: the camera rig (pose, intrinsics, head motion, targets).
         out_dir: the dataset folder to create.
         per_face: images per face.
-        seed: everything random derives from it (subject i, image j: ``[seed, i, j]``).
+        seed: everything random derives from it (face i, image j: ``[seed, i, j]``; the identity
+            k drawn from face i: ``[seed, i, 10**6 + k]``).
         settings: see :class:`SimSettings`.
         progress: show a progress bar.
         overwrite: replace an existing, non-empty dataset folder that ``simulate`` wrote.
+        identities_per_face: how many identities (:class:`SubjectDraw`) each photo gives; image j of
+            face i belongs to identity ``j % identities_per_face``, subject id ``simII`` (one identity)
+            or ``simIIiKK``. Each identity is a subject of its own in ``labels.csv``.
+        per_video: frames taken from each video file.
+        all_faces: every face of a picture with several (one crop each), not only the largest.
 
     Returns:
         A summary (counts, rig, settings).
@@ -348,12 +730,39 @@ def simulate(
     from facemesh.outputs import staged_folder
 
     s = settings or SimSettings()
+    faces = _expand_faces(faces, per_video=per_video, all_faces=all_faces)
     if per_face < 1:
         raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
+    if not 1 <= identities_per_face <= per_face:
+        raise GazeAugError(
+            f"identities per face: expected an integer from 1 to per_face ({per_face}), got {identities_per_face}"
+        )
     with staged_folder(out_dir, overwrite=overwrite, marker="simulation.json") as part:
         return _simulate_into(
-            part, Path(out_dir), faces, rig, per_face=per_face, seed=seed, settings=s, progress=progress
+            part,
+            Path(out_dir),
+            faces,
+            rig,
+            per_face=per_face,
+            seed=seed,
+            settings=s,
+            progress=progress,
+            identities=identities_per_face,
         )
+
+
+def _expand_faces(faces: Sequence[Any], *, per_video: int, all_faces: bool) -> list[Any]:
+    """Videos (and, with ``all_faces``, pictures of several people) become :class:`~gazeaug.faces.FaceSource` crops."""
+    from .faces import VIDEO_SUFFIXES, FaceSource, face_sources
+
+    out: list[Any] = []
+    for f in faces:
+        is_video = f is not None and not isinstance(f, FaceSource) and Path(str(f)).suffix.lower() in VIDEO_SUFFIXES
+        if is_video or (all_faces and f is not None and not isinstance(f, FaceSource)):
+            out.extend(face_sources([f], per_video=per_video, all_faces=all_faces))
+        else:
+            out.append(f)
+    return out
 
 
 def _simulate_into(
@@ -366,6 +775,7 @@ def _simulate_into(
     seed: int,
     settings: SimSettings,
     progress: bool,
+    identities: int = 1,
 ) -> dict[str, Any]:
     from facemesh.io import atomic_write, save_image_rgb
 
@@ -382,15 +792,27 @@ def _simulate_into(
         from tqdm import tqdm
 
         bar = tqdm(total=len(faces) * per_face, unit="image", desc="simulate", dynamic_ncols=True)
-    for i, face in enumerate(faces):
-        import warnings
+    from .faces import FaceSource
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            image, _, source = load_input(face, None)
-        subject_id = f"sim{i:02d}"
-        subj = SimSubject(image, detector, subject_id, s, np.random.default_rng([seed, i, 10**6]), source=source)
+    for i, face in enumerate(faces):
+        if isinstance(face, FaceSource):
+            image, source, person = face.image, face.origin, face.person or face.name
+        else:
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                image, _, source = load_input(face, None)
+            person = Path(str(source)).stem
+        photo = PhotoFace.from_image(image, detector, source)
+        subjects = []
+        for kk in range(identities):
+            sid = f"sim{i:02d}" if identities == 1 else f"sim{i:02d}i{kk:02d}"
+            draw = draw_subject(s, np.random.default_rng([seed, i, 10**6 + kk]))
+            subjects.append(SimSubject(photo, sid, s, draw))
         for j in range(per_face):
+            subj = subjects[j % identities]
+            subject_id = subj.name
             rng = np.random.default_rng([seed, i, j])
             r, t, target = _rig_pose(rig, rng)
             frame = subj.render(r, t, target, k, (w, h), rng)
@@ -415,6 +837,7 @@ def _simulate_into(
                 {
                     "image": name,
                     "source_face": source,
+                    "person": person,
                     "head_rotation": r.tolist(),
                     "head_translation_mm": t.tolist(),
                     "target_mm": target.tolist(),
@@ -422,6 +845,9 @@ def _simulate_into(
                     "eyeball_centres_mm": {a: v.tolist() for a, v in frame.eyeball_centres_mm.items()},
                     "kappa_deg": np.degrees(subj.kappa_rad).tolist(),
                     "face_coverage": frame.coverage,
+                    "subject": subject_id,
+                    "subject_draw": subj.draw.as_dict(),
+                    "light": frame.light,
                 }
             )
             if bar is not None:
@@ -431,7 +857,14 @@ def _simulate_into(
     write_labels_csv(out / "labels.csv", rows)
     with atomic_write(out / "simulation.jsonl") as fh:
         fh.write("".join(json.dumps(t) + "\n" for t in truth).encode("utf-8"))
-    summary = {"output": str(final), "images": len(rows), "faces": len(faces), "rig": rig.as_dict(), "seed": seed}
+    summary = {
+        "output": str(final),
+        "images": len(rows),
+        "faces": len(faces),
+        "subjects": len(faces) * identities,
+        "rig": rig.as_dict(),
+        "seed": seed,
+    }
     with atomic_write(out / "simulation.json") as fh:
         fh.write(
             json.dumps(

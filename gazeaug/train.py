@@ -1,7 +1,12 @@
 """Training the gaze model on the HDF5 sets that ``augment`` and ``normalize-dataset`` write.
 
 Data are streamed: blocks of rows are read in a shuffled order and shuffled
-within, so memory stays bounded whatever the file's size. The model predicts
+within, so memory stays bounded whatever the file's size. A background thread
+reads the next batches while the model steps (:func:`prefetch_batches`); the
+patches go to the device as uint8 and are augmented
+(:mod:`gazeaug.train_augment`, the one place of training-time augmentation)
+and converted to the model's input there (:func:`train_inputs`); CUDA steps run
+in bfloat16 autocast. The model predicts
 the gaze (pitch, yaw) in the face-centre normalized frame; the loss is the
 L1 distance of the angles, the reported error the angle between 3D gaze
 vectors (degrees). One checkpoint per epoch (``MODEL.ckpt.pt``) lets an
@@ -13,12 +18,15 @@ a plot of the curves.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
 import math
+import queue
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,21 +38,37 @@ from . import __version__
 from .errors import GazeAugError
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch
-from .models.preprocess import PREPROCESSING, prepare_inputs
+from .models.preprocess import (
+    check_input_mode,
+    input_mode_from_record,
+    input_mode_of,
+    prepare_inputs,
+    preprocessing_record,
+    scale_eyes,
+    set_input_mode,
+)
 from .normalize import NormalizationSettings
+from .train_augment import TrainAugment, augment_eyes, augment_generator
 
 __all__ = [
     "TrainSettings",
+    "TrainAugment",
     "H5TrainingSet",
     "train",
     "load_model",
     "predict_arrays",
     "angular_errors_deg",
+    "prefetch_batches",
+    "train_inputs",
     "MODEL_FORMAT",
 ]
 
 MODEL_FORMAT = "gazeaug-model"
 _CKPT_KEYS = ("state_dict", "optimizer", "scheduler", "epoch", "settings", "data_selection", "log", "torch_rng")
+#: The settings a checkpoint of an older gazeaug did not record, as that gazeaug trained.
+_LEGACY_SETTINGS: dict[str, Any] = {"augment": asdict(TrainAugment(enabled=False)), "input_mode": "rgb"}
+#: Batches read ahead by the background thread.
+PREFETCH = 3
 
 
 @dataclass(frozen=True)
@@ -60,6 +84,12 @@ class TrainSettings:
         weight_decay: Adam weight decay (default 1e-4); in [0, 10).
         seed: seeds weights, shuffling and everything random (default 0).
         device: ``auto`` (CUDA when present), ``cpu`` or ``cuda``.
+        augment: training-time augmentation of the eye patches, on the device
+            (:class:`gazeaug.train_augment.TrainAugment`; default on, ``TrainAugment(enabled=False)``
+            turns it off).
+        input_mode: the model's input normalization, ``rgb`` (default) or ``grey_equalized``
+            (grey + histogram equalization, as MPIIGaze's patches); recorded in the model file and
+            applied by every user of the model (see :mod:`gazeaug.models.preprocess`).
     """
 
     model: str = "mobilenet_gaze"
@@ -70,6 +100,8 @@ class TrainSettings:
     weight_decay: float = 1e-4
     seed: int = 0
     device: str = "auto"
+    augment: TrainAugment = field(default_factory=TrainAugment)
+    input_mode: str = "rgb"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.epochs, int) and self.epochs >= 1):
@@ -86,6 +118,9 @@ class TrainSettings:
             raise GazeAugError(f"model options: expected a dict of named options, got {self.model_options!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise GazeAugError(f"device: expected auto, cpu or cuda, got {self.device!r}")
+        if not isinstance(self.augment, TrainAugment):
+            raise GazeAugError(f"augment: expected a TrainAugment, got {self.augment!r}")
+        check_input_mode(self.input_mode)
 
 
 def _is_number(v: Any) -> bool:
@@ -119,18 +154,147 @@ def _device(name: str) -> Any:
 
 
 def predict_arrays(
-    model: Any, left: NDArray[np.uint8], right: NDArray[np.uint8], head_pose: NDArray[Any], batch_size: int = 512
+    model: Any,
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    head_pose: NDArray[Any],
+    batch_size: int = 512,
+    input_mode: str | None = None,
 ) -> NDArray[np.float64]:
-    """Gaze (N, 2) radians (pitch, yaw), face frame, for eye patches (N, H, W, 3) and head poses (N, 2)."""
+    """Gaze (N, 2) float64 radians (pitch, yaw), face frame, for eye patches and head poses.
+
+    Args:
+        model: a gaze model (from :func:`load_model`, or being trained).
+        left: (N, H, W, 3) uint8 RGB, the left eye patches.
+        right: (N, H, W, 3) uint8 RGB, the right eye patches.
+        head_pose: (N, 2) radians (pitch, yaw), face frame.
+        batch_size: samples per forward pass.
+        input_mode: the model's input mode; default: the one :func:`load_model` attached to the model
+            (``rgb`` for a model built otherwise).
+    """
     torch = import_torch()
+    mode = input_mode_of(model) if input_mode is None else check_input_mode(input_mode)
     device = next(model.parameters()).device
     out = []
     model.eval()
     with torch.no_grad():
         for i in range(0, len(left), batch_size):
-            a, b, c = prepare_inputs(left[i : i + batch_size], right[i : i + batch_size], head_pose[i : i + batch_size])
-            out.append(model(a.to(device), b.to(device), c.to(device)).cpu().numpy())
+            sl = slice(i, i + batch_size)
+            a, b, c = prepare_inputs(left[sl], right[sl], head_pose[sl], mode, device=device)
+            out.append(model(a, b, c).float().cpu().numpy())
     return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 2))
+
+
+class _Failed:
+    """An exception the reading thread raised, to raise again in the training thread."""
+
+    def __init__(self, exc: BaseException):
+        self.exc = exc
+
+
+_END = object()
+
+
+def prefetch_batches(
+    data: H5TrainingSet,
+    batch_size: int,
+    rng: np.random.Generator | None,
+    *,
+    depth: int = PREFETCH,
+    pin: bool = False,
+) -> Generator[tuple[dict[str, NDArray[Any]], dict[str, Any]], None, None]:
+    """:meth:`H5TrainingSet.batches`, read ``depth`` batches ahead by a background thread.
+
+    The order is exactly that of ``data.batches(batch_size, rng)`` (one thread draws from ``rng``),
+    so training stays deterministic. Close the iterator (``contextlib.closing``) to stop the thread
+    early; an error of the reading thread is raised here. ``depth`` 0: no thread, the batches are
+    read when asked for (the same batches).
+
+    Yields:
+        ``(batch, tensors)``: ``batch`` as :meth:`H5TrainingSet.batches` yields it (numpy, B rows);
+        ``tensors`` the CPU torch tensors the training moves to its device: ``eyes`` uint8
+        (2B, H, W, 3), the left eyes then the right eyes, RGB; ``head_pose`` and ``gaze`` float32
+        (B, 2) radians (pitch, yaw). In pinned memory with ``pin`` (for CUDA's asynchronous copies).
+    """
+    torch = import_torch()
+
+    def tensor(a: NDArray[Any]) -> Any:
+        t = torch.from_numpy(np.ascontiguousarray(a))
+        return t.pin_memory() if pin else t
+
+    def tensors(batch: dict[str, NDArray[Any]]) -> dict[str, Any]:
+        return {
+            "eyes": tensor(np.concatenate([batch["left_eye"], batch["right_eye"]])),
+            "head_pose": tensor(batch["head_pose"].astype(np.float32, copy=False)),
+            "gaze": tensor(batch["gaze"].astype(np.float32, copy=False)),
+        }
+
+    if depth <= 0:
+        with contextlib.closing(data.batches(batch_size, rng)) as it:  # type: ignore[type-var]
+            for batch in it:
+                yield batch, tensors(batch)
+        return
+    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item: Any) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work() -> None:
+        it = data.batches(batch_size, rng)
+        try:
+            for batch in it:
+                if not put((batch, tensors(batch))):
+                    return
+            put(_END)
+        except BaseException as exc:  # noqa: BLE001 - handed to the training thread, raised there
+            put(_Failed(exc))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()  # closes the file
+
+    worker = threading.Thread(target=work, name="gazeaug-prefetch", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _END:
+                return
+            if isinstance(item, _Failed):
+                raise item.exc
+            yield item
+    finally:
+        stop.set()
+        worker.join()
+
+
+def train_inputs(
+    tensors: dict[str, Any], device: Any, augment: TrainAugment, input_mode: str, generator: Any
+) -> tuple[Any, Any, Any, Any]:
+    """A prefetched batch (:func:`prefetch_batches`) -> the model's inputs and target, on ``device``.
+
+    The eye patches travel as uint8 (asynchronously from pinned memory) and are augmented
+    (:func:`gazeaug.train_augment.augment_eyes`, with ``generator`` on ``device``), then converted by
+    the model's input mode (:func:`gazeaug.models.preprocess.scale_eyes`) on the device.
+
+    Returns:
+        left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians.
+    """
+    torch = import_torch()
+    eyes = tensors["eyes"].to(device, non_blocking=True)
+    head = tensors["head_pose"].to(device, non_blocking=True)
+    gaze = tensors["gaze"].to(device, non_blocking=True)
+    with torch.no_grad():
+        x = scale_eyes(augment_eyes(eyes, augment, generator), input_mode)
+    n = x.shape[0] // 2
+    return x[:n], x[n:], head, gaze
 
 
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
@@ -229,21 +393,26 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     The file is read with PyTorch's restricted unpickler (tensors and plain values only): a file
     that carries code is refused and nothing in it runs.
 
+    The model's input mode (``preprocessing["input"]``; ``rgb`` when absent) is attached to the
+    model, so :func:`predict_arrays` prepares its inputs the same way, and given as
+    ``meta["input_mode"]``.
+
     The metadata are checked: the weights must be finite, ``normalization`` a dict that
     :meth:`NormalizationSettings.from_dict` accepts (an absent key takes its default; ``meta``
     holds it in full) and ``patch_size_wh`` two integers within the settings' bounds.
 
     Raises:
-        GazeAugError: missing, unreadable, truncated, crafted or not a gazeaug model; non-finite
-            weights; unusable ``normalization`` or ``patch_size_wh``.
+        GazeAugError: missing, unreadable, truncated, crafted or not a gazeaug model; an unknown
+            input preprocessing; non-finite weights; unusable ``normalization`` or ``patch_size_wh``.
     """
     p = Path(path)
     obj = _load_plain(p, "gazeaug model")
     if obj.get("format") != MODEL_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug model (no '{MODEL_FORMAT}' format mark)")
-    preprocessing = obj.get("preprocessing")
-    if not isinstance(preprocessing, dict) or preprocessing.get("version") != PREPROCESSING["version"]:
-        raise GazeAugError(f"{p}: made with another input preprocessing ({preprocessing})")
+    try:  # version 1 without an 'input' key: every model made before input modes, RGB
+        input_mode = input_mode_from_record(obj.get("preprocessing"))
+    except GazeAugError as exc:
+        raise GazeAugError(f"{p}: {exc}") from exc
     name, options = obj.get("model"), obj.get("model_options", {})
     if not isinstance(name, str) or not isinstance(options, dict) or not all(isinstance(k, str) for k in options):
         raise GazeAugError(f"{p}: not a gazeaug model (bad 'model' or 'model_options' entries)")
@@ -257,7 +426,9 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
         raise GazeAugError(f"{p}: model {name!r} does not take the options {options} ({exc})") from exc
     _load_weights(model, state, p, f"gazeaug model ({name})")
     model.to(_device(device)).eval()
+    set_input_mode(model, input_mode)  # predict_arrays (evaluate, predict) reads it
     meta = {k: v for k, v in obj.items() if k != "state_dict"}
+    meta["input_mode"] = input_mode
     meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
     meta["patch_size_wh"] = patch
     return model, meta
@@ -399,9 +570,19 @@ def _train(
             )
         if missing:
             raise GazeAugError(f"{ckpt_path}: not a gazeaug checkpoint (missing {missing})")
-        changed = _differences(ck.get("settings") or {}, asdict(s))
+        then_settings = ck.get("settings")
+        if not isinstance(then_settings, dict):
+            raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (its 'settings' are not a dict)")
+        changed = _differences({**_LEGACY_SETTINGS, **then_settings}, asdict(s))
         if changed:
-            raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings ({'; '.join(changed)})")
+            hint = ""
+            if any(k not in then_settings for k in _LEGACY_SETTINGS):
+                hint = (
+                    "; made by an older gazeaug, without training-time augmentation and with RGB input: "
+                    "resume it with --no-augment --input rgb (TrainAugment(enabled=False), input_mode='rgb') "
+                    "or start over"
+                )
+            raise GazeAugError(f"{ckpt_path}: the checkpoint was made with other settings ({'; '.join(changed)}{hint})")
         then = ck.get("data_selection")
         if not isinstance(then, dict) or "train_fingerprint" not in then:
             raise GazeAugError(
@@ -430,31 +611,41 @@ def _train(
         bar = tqdm(
             total=s.epochs * len(data), initial=start_epoch * len(data), unit="sample", desc="train", dynamic_ncols=True
         )
+    set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
+    cuda = device.type == "cuda"
     for epoch in range(start_epoch, s.epochs):
         rng = np.random.default_rng([s.seed, epoch])
+        gen = augment_generator(s.seed, epoch, device)
         model.train()
         t0 = time.perf_counter()
-        losses, errs, seen = [], [], 0
-        for batch in data.batches(s.batch_size, rng):
-            a, b, c = prepare_inputs(batch["left_eye"], batch["right_eye"], batch["head_pose"])
-            y = torch.from_numpy(batch["gaze"].astype(np.float32)).to(device)
-            pred = model(a.to(device), b.to(device), c.to(device))
-            loss = (pred - y).abs().mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            losses.append(loss.item() * len(y))
-            errs.append(angular_errors_deg(pred.detach().cpu().numpy(), batch["gaze"]))
-            seen += len(y)
-            if bar is not None:
-                bar.update(len(y))
-                bar.set_postfix(loss=f"{loss.item():.4f}")
+        losses, preds, gazes, sizes = [], [], [], []
+        with contextlib.closing(prefetch_batches(data, s.batch_size, rng, depth=PREFETCH, pin=cuda)) as batches:
+            for step, (batch, tensors) in enumerate(batches):
+                n = len(batch["gaze"])
+                a, b, c, y = train_inputs(tensors, device, s.augment, s.input_mode, gen)
+                with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
+                    pred = model(a, b, c)
+                loss = (pred.float() - y).abs().mean()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                sched.step()
+                losses.append(loss.detach())  # no synchronisation with the device inside the epoch
+                preds.append(pred.detach().float())
+                gazes.append(batch["gaze"])
+                sizes.append(n)
+                if bar is not None:
+                    bar.update(n)
+                    if step % 20 == 0:
+                        bar.set_postfix(loss=f"{loss.item():.4f}")
+        seen = sum(sizes)
+        step_losses = torch.stack(losses).double().cpu().numpy()
+        train_errors = angular_errors_deg(torch.cat(preds).cpu().numpy(), np.concatenate(gazes))
         seconds = time.perf_counter() - t0
         row = {
             "epoch": epoch + 1,
-            "train_loss": sum(losses) / seen,
-            "train_error_deg": float(np.concatenate(errs).mean()),
+            "train_loss": float(np.dot(step_losses, sizes) / seen),
+            "train_error_deg": float(train_errors.mean()),
             "val_error_deg": _evaluate_set(model, val, 512) if val is not None else None,
             "seconds": round(seconds, 3),
             "samples_per_second": round(seen / seconds, 1),
@@ -484,7 +675,7 @@ def _train(
             "model": s.model,
             "model_options": dict(s.model_options),
             "state_dict": {k: v.cpu() for k, v in model.state_dict().items()},
-            "preprocessing": PREPROCESSING,
+            "preprocessing": preprocessing_record(s.input_mode),
             "normalization": normalization.as_dict(),
             "patch_size_wh": list(data.patch_size_wh),
             "train_settings": asdict(s),

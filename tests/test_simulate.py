@@ -54,13 +54,14 @@ def test_the_dataset_reads_back_and_faces_are_found(sim_dir, detector):
         assert np.degrees(np.abs(n.left.gaze)).max() < 1.0 and np.degrees(np.abs(n.right.gaze)).max() < 1.0
     assert found == 8
     # our pipeline's head pose agrees with the simulator's within a few degrees (measured over 120
-    # images of 4 faces: median 3-4 deg, 95th percentile 6.5-7.3 deg; worst at 35-40 deg of yaw)
-    assert np.median(diffs) < 5.0 and max(diffs) < 12.0
+    # images of 4 faces without identity draws: median 3-4 deg, 95th percentile 6.5-7.3 deg; worst at
+    # 35-40 deg of yaw). A drawn face shape differs more from the generic model PnP fits: up to 12 deg.
+    assert np.median(diffs) < 5.0 and max(diffs) < 16.0
 
 
 def test_eyeballs_fixate_the_target_and_lids_follow_pitch(faces_dir, detector):
     img = load_image_rgb(faces_dir / "astronaut.png")
-    subj = SimSubject(img, detector, "a", SimSettings(kappa_deg=0.0), np.random.default_rng(0))
+    subj = SimSubject.from_image(img, detector, "a", SimSettings(kappa_deg=0.0), np.random.default_rng(0))
     target = np.array([0.0, -200.0, -400.0])  # above and in front of the eyes (head frame: y down)
     for side in ("left", "right"):
         axis = subj.optical_axis(side, target)

@@ -1,0 +1,145 @@
+"""Training data path speed: samples per second reading, reading + augmenting, and training.
+
+``python benchmarks/bench_train.py [--rows 20000] [--batch-sizes 256 1024] [--threads 2]``
+builds a synthetic training set (36 x 60 patches: a grey level that encodes the
+gaze, a darker "iris" disc and pixel noise, gzip-compressed like the real sets;
+the schema of ``gazeaug augment``) and, on the CPU (``--threads`` torch threads)
+and on CUDA when there is one, for every batch size measures one pass over it:
+
+- ``read``: the rows from HDF5 through :func:`gazeaug.train.prefetch_batches`
+  (background thread, uint8 tensors; pinned and copied to the GPU on CUDA);
+- ``read_augment``: the same plus :func:`gazeaug.train.train_inputs` (the
+  training-time augmentation and the input scaling, on the device);
+- ``train``: :func:`gazeaug.train.train`, one epoch of the default model with
+  the default settings (augmentation on), the samples per second of its log;
+- ``train_no_augment``: the same with ``TrainAugment(enabled=False)``.
+
+Prints one JSON line: ``{"rows", "threads", "cpu": {BATCH: {what: samples/s}},
+"cuda": {...} or null, "cuda_device", "torch"}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from gazeaug.io_h5 import H5TrainingSet, H5Writer, Rows  # noqa: E402
+from gazeaug.train import TrainSettings, prefetch_batches, train, train_inputs  # noqa: E402
+from gazeaug.train_augment import TrainAugment, augment_generator  # noqa: E402
+
+_BLOCK = 2048
+
+
+def synthetic(path: Path, n: int, seed: int = 0) -> Path:
+    """A schema-complete training set of ``n`` eye-like patches, written in blocks (bounded memory)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:36, 0:60]
+    w = H5Writer(path, {"settings": {}}, (60, 36))
+    for lo in range(0, n, _BLOCK):
+        m = min(_BLOCK, n - lo)
+        gaze = rng.uniform(-0.4, 0.4, (m, 2)).astype(np.float32)
+        head = rng.uniform(-0.3, 0.3, (m, 2)).astype(np.float32)
+        level = (150 + 150 * gaze[:, 0]).astype(np.float32)
+        cx, cy = 30 + 40 * gaze[:, 1], 18 + 20 * gaze[:, 0]
+        iris = (xx[None] - cx[:, None, None]) ** 2 + (yy[None] - cy[:, None, None]) ** 2 < 36
+        img = level[:, None, None] - 90 * iris + rng.normal(0, 3, (m, 36, 60)).astype(np.float32)
+        eyes = np.repeat(img[..., None], 3, axis=3).clip(0, 255).astype(np.uint8)
+        eye3 = np.tile(np.eye(3, dtype=np.float32), (m, 1, 1))
+        cols = {
+            "left_eye": eyes,
+            "right_eye": eyes[:, :, ::-1],
+            "head_pose": head,
+            "gaze": gaze,
+            "head_pose_vector": np.zeros((m, 3)),
+            "gaze_vector": np.zeros((m, 3)),
+            "head_pose_left": head,
+            "head_pose_right": head,
+            "gaze_left": gaze,
+            "gaze_right": gaze,
+            "R_norm_left": eye3,
+            "R_norm_right": eye3,
+            "R_norm_face": eye3,
+            "subject": np.array([f"s{i % 10}".encode() for i in range(lo, lo + m)]),
+            "source_index": np.arange(lo, lo + m),
+            "sampled_yaw_pitch": np.full((m, 2), np.nan),
+        }
+        w.append(Rows(cols), lo + m - 1)
+    w.finish()
+    return path
+
+
+def _pass(h5: Path, batch_size: int, device: Any, augment: bool) -> float:
+    """Samples per second of one pass: reading (and augmenting) every row onto ``device``."""
+    import torch
+
+    data = H5TrainingSet(h5)
+    cuda = device.type == "cuda"
+    gen = augment_generator(0, 0, device)
+    aug = TrainAugment()
+    seen = 0
+    t0 = time.perf_counter()
+    for _, tensors in prefetch_batches(data, batch_size, np.random.default_rng(0), pin=cuda):
+        if augment:
+            a, _, _, _ = train_inputs(tensors, device, aug, "rgb", gen)
+        else:
+            a = tensors["eyes"].to(device, non_blocking=True)
+        seen += len(tensors["gaze"])
+    if cuda:
+        torch.cuda.synchronize()
+    return round(seen / (time.perf_counter() - t0), 1)
+
+
+def measure(h5: Path, tmp: Path, batch_size: int, device_name: str) -> dict[str, float]:
+    """Every figure for one device and batch size."""
+    import torch
+
+    device = torch.device(device_name)
+    out = {"read": _pass(h5, batch_size, device, False), "read_augment": _pass(h5, batch_size, device, True)}
+    for what, aug in (("train", TrainAugment()), ("train_no_augment", TrainAugment(enabled=False))):
+        s = TrainSettings(epochs=1, batch_size=batch_size, device=device_name, augment=aug)
+        log = train(h5, tmp / f"m_{device_name}_{batch_size}_{what}.pt", s, progress=False)
+        out[what] = log[-1]["samples_per_second"]
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Build the set, measure, print one JSON line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--rows", type=int, default=20000)
+    p.add_argument("--batch-sizes", type=int, nargs="+", default=[256, 1024])
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--no-cuda", action="store_true", help="CPU only, even with a GPU")
+    args = p.parse_args(argv)
+    warnings.simplefilter("ignore")
+    import torch
+
+    torch.set_num_threads(args.threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        h5 = synthetic(Path(tmp) / "bench.h5", args.rows)
+        cpu = {str(b): measure(h5, Path(tmp), b, "cpu") for b in args.batch_sizes}
+        cuda = None
+        if torch.cuda.is_available() and not args.no_cuda:
+            cuda = {str(b): measure(h5, Path(tmp), b, "cuda") for b in args.batch_sizes}
+        result = {
+            "rows": args.rows,
+            "threads": torch.get_num_threads(),
+            "cpu": cpu,
+            "cuda": cuda,
+            "cuda_device": torch.cuda.get_device_name(0) if cuda is not None else None,
+            "torch": torch.__version__,
+        }
+        print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

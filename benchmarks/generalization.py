@@ -1,0 +1,134 @@
+"""Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
+
+``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
+[--test-per-person 15] [--no-vary] [--keep]``
+
+1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
+   (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
+   00408, 00480), ``--per-face`` images each in the ``screen`` rig, every photo giving
+   ``--identities`` simulated identities (``gazeaug simulate --identities-per-face``).
+2. Simulates the test sets: the other people of ``benchmarks/people.py`` (one identity
+   each, ``--test-per-person`` images), in the ``wheelchair`` rig (new person, new rig)
+   and in the ``screen`` rig (new person, same rig).
+3. Runs :func:`gazeaug.experiment.run_experiment` (original vs augmented, equal optimizer
+   steps, ``--seeds`` seeds) and prints one JSON line with the figures issue 13 sets
+   targets for: mean error, ratio to the constant guess, Pearson r of pitch and yaw, the
+   error without the global offset, the reduction and its spread over seeds.
+
+Everything random derives from ``--seed``. The report lands in ``OUT/report/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+TRAIN_PHOTOS = (
+    "astronaut.png",
+    "business-person.png",
+    "sergey.png",
+    "pexels/image00.jpg",
+    "pexels/image01.jpg",
+    "aflw_deca/AFLW2000_image00202.jpg",
+    "aflw_deca/AFLW2000_image00302.jpg",
+    "aflw_deca/AFLW2000_image00408.jpg",
+    "aflw_deca/AFLW2000_image00480.jpg",
+)
+
+
+def test_people(data: Path, work: Path) -> list[Path]:
+    """The other people's face pictures, written as PNG files under ``work`` (one per person)."""
+    import cv2
+    from people import other_people  # benchmarks/people.py
+
+    out = []
+    work.mkdir(parents=True, exist_ok=True)
+    for k, src in enumerate(other_people(data)):
+        p = work / f"person{k:02d}.png"
+        cv2.imwrite(str(p), cv2.cvtColor(src.image, cv2.COLOR_RGB2BGR))
+        out.append(p)
+    return out
+
+
+def main() -> None:
+    """Run it."""
+    from gazeaug.experiment import BUILTIN_TRAIN, ExperimentSettings, run_experiment
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import SimSettings, simulate
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-o", "--output", type=Path, required=True)
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    ap.add_argument("--per-face", type=int, default=40)
+    ap.add_argument("--identities", type=int, default=40, help="identities per training photo")
+    ap.add_argument("--test-per-person", type=int, default=15)
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--epochs", type=int, default=BUILTIN_TRAIN.epochs)
+    ap.add_argument("--batch-size", type=int, default=BUILTIN_TRAIN.batch_size)
+    ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    t0 = time.perf_counter()
+    out = args.output
+    sim = SimSettings(vary_identity=not args.no_vary)
+    faces = [args.data / "faces" / n for n in TRAIN_PHOTOS]
+    people = test_people(args.data, out / "people")
+    kw = {"progress": False, "overwrite": True, "settings": sim}
+    train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"
+    simulate(
+        faces,
+        BUILTIN_RIGS["screen"],
+        train_dir,
+        per_face=args.per_face,
+        identities_per_face=args.identities,
+        seed=args.seed,
+        **kw,
+    )
+    simulate(people, BUILTIN_RIGS["wheelchair"], test_dir, per_face=args.test_per_person, seed=args.seed + 1, **kw)
+    simulate(people, BUILTIN_RIGS["screen"], same_dir, per_face=args.test_per_person, seed=args.seed + 1, **kw)
+    t_sim = time.perf_counter() - t0
+    rig = BUILTIN_RIGS["wheelchair"]
+    settings = ExperimentSettings(
+        per_sample=4,
+        distribution=rig.distribution(),
+        train=BUILTIN_TRAIN.__class__(
+            **{**BUILTIN_TRAIN.__dict__, "epochs": args.epochs, "batch_size": args.batch_size}
+        ),
+        workers=args.workers,
+        seed=args.seed,
+        seeds=args.seeds,
+    )
+    res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)
+    summary: dict[str, object] = {
+        "people": len(people),
+        "train_images": len(TRAIN_PHOTOS) * args.per_face,
+        "identities_per_photo": args.identities,
+        "vary_identity": not args.no_vary,
+        "simulate_s": round(t_sim, 1),
+        "total_s": round(time.perf_counter() - t0, 1),
+    }
+    for name, test in res["tests"].items():
+        m = test["metrics"]
+        row: dict[str, object] = {"constant_deg": round(m["mean_deg"]["constant"], 2)}
+        for model in ("original", "augmented"):
+            for key in ("mean_deg", "ratio_to_constant", "bias_removed_deg", "pearson_pitch", "pearson_yaw"):
+                v = m[key][model]
+                row[f"{model}.{key}"] = None if v["mean"] is None else round(v["mean"], 3)
+                if key == "mean_deg":
+                    row[f"{model}.mean_deg_std"] = None if v["std"] is None else round(v["std"], 2)
+        row["reduction_percent"] = test.get("reduction_percent")
+        summary[name] = row
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,251 @@
+"""Training-time augmentation of eye patches, on the model's device (a GPU when there is one).
+
+Models trained on simulated eye patches learn the identities' look (skin tone,
+exposure, sharpness) along with the gaze. :class:`TrainAugment` perturbs every
+training patch, per sample and at random, in ways that keep the gaze label:
+
+==============  =========================================================  ==============
+what            how (per patch, drawn uniformly unless said)               default
+==============  =========================================================  ==============
+translation     whole pixels in ``[-shift_px, shift_px]`` per axis,         2 px
+                borders reflected (as a pad-reflect and a random crop)
+blur            Gaussian, sigma in ``[0, blur_sigma]`` px; applied with     1.2 px
+                the translation as one separable, shifted kernel
+colour gain     one gain per channel in ``[1 - colour, 1 + colour]``        0.08
+contrast        factor in ``[1 - contrast, 1 + contrast]`` about the        0.25
+                patch's mean
+brightness      offset in ``[-brightness, brightness]`` grey levels         20
+gamma           ``255 (x / 255) ** g``, ``log g`` in                        0.25
+                ``[-log(1 + gamma), log(1 + gamma)]``
+noise           Gaussian, standard deviation in ``[0, noise]`` grey        4
+                levels, one draw per pixel, the same on the three
+                channels (luminance noise: a third of the draws)
+==============  =========================================================  ==============
+
+applied in this order, the values clipped to [0, 255] after the brightness and
+after the noise. The left and the right eye of a sample get **independent
+draws** (the model sees each eye through the shared backbone; a sample's eyes
+need not look alike). Nothing is drawn when :attr:`TrainAugment.enabled` is
+False: ``TrainAugment(enabled=False)`` (``gazeaug train --no-augment``) trains
+on the patches as they are.
+
+**No JPEG compression**: it cannot run on the device (there is no JPEG encoder
+among PyTorch's tensor operations), and encoding on the CPU would make the CPU
+the bottleneck of GPU training. ``gazeaug simulate`` draws a JPEG quality per
+image (:class:`gazeaug.simulate.SimSettings`) instead.
+
+Randomness: one ``torch.Generator`` on the patches' device per epoch, seeded
+from the training seed and the epoch (:func:`augment_generator`), so a run is
+reproducible and a resumed run augments as the uninterrupted one did. The
+draws differ between devices (the CPU's and CUDA's generators differ).
+
+The augmentation works on the raw patches; the model's input normalization
+(:func:`gazeaug.models.preprocess.scale_eyes`, e.g. grey + histogram
+equalization, which undoes much of the brightness, contrast and gamma
+changes) comes after it, as at inference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import GazeAugError
+from .models import import_torch
+from .models.preprocess import eyes_to_float
+
+__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "translate_blur"]
+
+
+def _number(v: Any) -> bool:
+    return (
+        isinstance(v, (int, float, np.integer, np.floating))
+        and not isinstance(v, (bool, np.bool_))
+        and math.isfinite(v)
+    )
+
+
+@dataclass(frozen=True)
+class TrainAugment:
+    """Strengths of the training-time augmentation (see the module docstring); 0 turns one off.
+
+    Attributes:
+        enabled: augment at all (default True); False trains on the patches as they are.
+        shift_px: largest translation, pixels per axis, an integer in [0, 16] (default 2).
+        blur_sigma: largest Gaussian blur sigma, pixels, in [0, 3] (default 1.2).
+        colour: per-channel gain spread, in [0, 1) (default 0.08: gains 0.92 to 1.08).
+        contrast: contrast factor spread about the patch mean, in [0, 1) (default 0.25).
+        brightness: largest offset, grey levels, in [0, 128] (default 20).
+        gamma: gamma spread, in [0, 4]: exponents from 1 / (1 + gamma) to 1 + gamma (default 0.25).
+        noise: largest standard deviation of the pixel noise, grey levels, in [0, 64] (default 4).
+
+    Raises:
+        GazeAugError: a value of the wrong type or outside its range.
+    """
+
+    enabled: bool = True
+    shift_px: int = 2
+    blur_sigma: float = 1.2
+    colour: float = 0.08
+    contrast: float = 0.25
+    brightness: float = 20.0
+    gamma: float = 0.25
+    noise: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, (bool, np.bool_)):
+            raise GazeAugError(f"enabled: expected True or False, got {self.enabled!r}")
+        if not (isinstance(self.shift_px, (int, np.integer)) and not isinstance(self.shift_px, (bool, np.bool_))):
+            raise GazeAugError(f"shift_px: expected an integer in [0, 16] pixels, got {self.shift_px!r}")
+        if not 0 <= self.shift_px <= 16:
+            raise GazeAugError(f"shift_px: expected an integer in [0, 16] pixels, got {self.shift_px!r}")
+        bounds = {  # name: (low, high, high included, unit)
+            "blur_sigma": (0.0, 3.0, True, " pixels"),
+            "colour": (0.0, 1.0, False, ""),
+            "contrast": (0.0, 1.0, False, ""),
+            "brightness": (0.0, 128.0, True, " grey levels"),
+            "gamma": (0.0, 4.0, True, ""),
+            "noise": (0.0, 64.0, True, " grey levels"),
+        }
+        for name, (lo, hi, closed, unit) in bounds.items():
+            v = getattr(self, name)
+            if not (_number(v) and lo <= v and (v <= hi if closed else v < hi)):
+                interval = f"[{lo:g}, {hi:g}{']' if closed else ')'}"
+                raise GazeAugError(f"{name}: expected a number in {interval}{unit}, got {v!r}")
+
+
+def augment_generator(seed: int, epoch: int, device: Any = "cpu") -> Any:
+    """The ``torch.Generator`` on ``device`` that augments epoch ``epoch`` (0-based) of a run seeded ``seed``."""
+    torch = import_torch()
+    state = np.random.SeedSequence([int(seed), int(epoch), 0x61756720]).generate_state(2, np.uint32)
+    g = torch.Generator(device=device)
+    g.manual_seed(int(state[0]) << 31 ^ int(state[1]))
+    return g
+
+
+def _reflect(idx: Any, size: int) -> Any:
+    """Indices reflected into [0, size) about the border pixels (numpy's and PyTorch's 'reflect', repeated)."""
+    if size == 1:
+        return idx * 0
+    period = 2 * (size - 1)
+    i = idx.remainder(period)
+    return i.where(i < size, period - i)
+
+
+#: Largest patch side blurred by matrix products (faster on the CPU than a depthwise convolution);
+#: larger patches use the convolution (the matrices grow as the side squared).
+_MATMUL_MAX_SIDE = 128
+
+
+def _kernels(sigma: Any, shift: Any, radius: int) -> tuple[Any, Any]:
+    """Tap offsets (T,) int64 and weights (N, T) float32 of the shifted Gaussian: out[i] = sum w[t] in[i + off[t]]."""
+    torch = import_torch()
+    reach = radius + int(shift.abs().max()) if shift.numel() else radius
+    off = torch.arange(-reach, reach + 1, device=sigma.device)
+    s = sigma.float().clamp(min=1e-3).unsqueeze(1)  # below: a delta (exp underflows to 0 off the centre)
+    d = (off.unsqueeze(0) + shift.unsqueeze(1)).float()  # distance of each tap from the source centre i - shift
+    w = torch.exp(-0.5 * (d / s) ** 2) * (d.abs() <= radius)
+    return off, w / w.sum(1, keepdim=True)
+
+
+def _matrices(sigma: Any, shift: Any, radius: int, size: int) -> Any:
+    """(N, size, size) float32: row i holds the weights of the source pixels of output pixel i."""
+    torch = import_torch()
+    off, w = _kernels(sigma, shift, radius)
+    n = w.shape[0]
+    src = _reflect(torch.arange(size, device=w.device).view(1, size, 1) + off.view(1, 1, -1), size)
+    m = torch.zeros((n, size, size), device=w.device, dtype=torch.float32)
+    return m.scatter_add_(2, src.expand(n, -1, -1), w.unsqueeze(1).expand(-1, size, -1))
+
+
+def translate_blur(eyes: Any, shift_yx: Any, sigma: Any, radius: int, *, method: str = "auto") -> Any:
+    """Translate every patch by whole pixels and blur it with a Gaussian, each with its own parameters.
+
+    ``out[y, x] = sum G(j) G(k) eyes[y - dy + j, x - dx + k]`` over ``|j|, |k| <= radius``, ``G`` the
+    normalized Gaussian of the patch's sigma, indices reflected at the borders (numpy's 'reflect':
+    a pad-reflect and a crop); sigma 0 is a pure translation (exact), shift 0 a pure blur.
+
+    Args:
+        eyes: float32 torch tensor (N, C, H, W), any device.
+        shift_yx: int64 (N, 2), the same device: (down, right) pixels; a positive shift moves the
+            content down and to the right.
+        sigma: float32 (N,), pixels, the same device.
+        radius: kernel half-width, pixels (``ceil(3 * largest sigma)``).
+        method: ``matmul`` (two matrix products per patch: the separable kernels as banded matrices),
+            ``conv`` (a depthwise convolution, per-patch kernels; ``matmul`` where the kernel reaches
+            beyond the side) or ``auto`` (``matmul`` for sides up to 128 pixels). The same result up
+            to rounding.
+
+    Returns:
+        float32 (N, C, H, W) in channels-last memory order (as the uint8 (N, H, W, C) patches: the
+        model trains fastest on it), the same device.
+    """
+    torch = import_torch()
+    n, c, h, w = eyes.shape
+    if n == 0:
+        return eyes
+    offv, wv = _kernels(sigma, shift_yx[:, 0], radius)
+    offh, wh = _kernels(sigma, shift_yx[:, 1], radius)
+    pv, ph = int(offv[-1]), int(offh[-1])
+    if method == "auto":
+        method = "matmul" if max(h, w) <= _MATMUL_MAX_SIDE else "conv"
+    if method == "matmul" or pv >= h or ph >= w:  # a reflect pad must be shorter than the side
+        mv = _matrices(sigma, shift_yx[:, 0], radius, h)  # (N, H, H)
+        mh = _matrices(sigma, shift_yx[:, 1], radius, w)  # (N, W, W)
+        y = torch.bmm(mv, eyes.transpose(1, 2).reshape(n, h, c * w))  # rows: (N, H, C*W)
+        y = torch.bmm(y.view(n, h * c, w), mh.transpose(1, 2))  # columns: (N, H*C, W)
+        return y.view(n, h, c, w).transpose(1, 2).contiguous(memory_format=torch.channels_last)
+    fn = torch.nn.functional
+    x = fn.pad(eyes.reshape(1, n * c, h, w), (ph, ph, pv, pv), mode="reflect")
+    x = fn.conv2d(x, wh.repeat_interleave(c, 0).view(n * c, 1, 1, -1), groups=n * c)
+    x = fn.conv2d(x, wv.repeat_interleave(c, 0).view(n * c, 1, -1, 1), groups=n * c)
+    return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
+
+
+def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
+    """Augment a batch of eye patches on their device (see the module docstring).
+
+    Args:
+        eyes: uint8 torch tensor (N, H, W, 3) RGB, on the device that trains (the left and the right
+            eyes of a batch stacked: every patch gets its own draws).
+        augment: the strengths.
+        generator: a ``torch.Generator`` on the same device (:func:`augment_generator`).
+
+    Returns:
+        float32 (N, 3, H, W), RGB, in [0, 255] grey levels (not rounded), in channels-last memory
+        order (the model trains fastest on it, about 1.5 x on the CPU), the same device: ready for
+        :func:`gazeaug.models.preprocess.scale_eyes`. With ``augment.enabled`` False, the patches
+        as they are (nothing drawn).
+    """
+    torch = import_torch()
+    if not augment.enabled or eyes.shape[0] == 0:
+        return eyes_to_float(eyes)
+    n, dev, g = eyes.shape[0], eyes.device, generator
+
+    def uniform(lo: float, hi: float, *shape: int) -> Any:
+        return torch.rand((n, *shape), generator=g, device=dev).mul_(hi - lo).add_(lo)
+
+    # every draw always made, in a fixed order: a strength set to 0 changes no other draw
+    shift = torch.randint(-augment.shift_px, augment.shift_px + 1, (n, 2), generator=g, device=dev)
+    sigma = uniform(0.0, augment.blur_sigma)
+    gain = uniform(1 - augment.colour, 1 + augment.colour, 3)
+    contrast = uniform(1 - augment.contrast, 1 + augment.contrast)
+    offset = uniform(-augment.brightness, augment.brightness)
+    log_gamma = math.log1p(augment.gamma)
+    gamma = uniform(-log_gamma, log_gamma).exp_()
+    noise_std = uniform(0.0, augment.noise)
+    x = eyes_to_float(eyes)
+    if augment.shift_px or augment.blur_sigma > 0:
+        x = translate_blur(x, shift, sigma, math.ceil(3 * augment.blur_sigma))
+    x = x * gain.view(n, 3, 1, 1)
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    x = x.sub_(mean).mul_(contrast.view(n, 1, 1, 1)).add_(mean + offset.view(n, 1, 1, 1)).clamp_(0, 255)
+    if augment.gamma > 0:
+        x = x.div_(255.0).pow_(gamma.view(n, 1, 1, 1)).mul_(255.0)
+    if augment.noise > 0:  # one draw per pixel, the same on the three channels (luminance noise)
+        noise = torch.randn((n, 1, *x.shape[2:]), generator=g, device=dev)
+        x = x.add_(noise.mul_(noise_std.view(n, 1, 1, 1)))
+    return x.clamp_(0, 255)

@@ -1,0 +1,234 @@
+"""Simulated identities: the shape space, the identity draw, lighting, glasses, realistic eyeballs."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from facemesh.render import Fragments
+from gazeaug.render.shaders import EyeballShader, FlatShader, Light, LitShader, vertex_normals
+from gazeaug.simulate import Glasses, SimSettings, SubjectDraw, draw_subject
+
+
+def _fragments(n, triangle_id=0, bary=(0.0, 0.0)):
+    return Fragments(
+        mesh_id=np.zeros(n, np.int32),
+        triangle_id=np.full(n, triangle_id, np.int32),
+        barycentrics=np.tile(np.asarray(bary, np.float32), (n, 1)),
+        distance=np.ones(n, np.float32),
+    )
+
+
+# --------------------------------------------------------------------------- the shape space
+
+
+def test_shape_space_is_an_orthonormal_basis_around_the_builtin_model():
+    from facemesh.face_models import builtin_face_model
+    from facemesh.face_models.shape_space import shape_space
+
+    sp = shape_space()
+    np.testing.assert_allclose(sp.mean_mm, builtin_face_model("mediapipe").vertices_mm, atol=1e-9)
+    flat = sp.components.reshape(sp.num_components, -1)
+    np.testing.assert_allclose(flat @ flat.T, np.eye(sp.num_components), atol=1e-5)
+    assert (np.diff(sp.std_mm) <= 0).all() and sp.std_mm[-1] > 0  # sorted by spread
+    # one standard deviation along component k moves the shape by std_k (mm, over all 1404 numbers)
+    for k in (0, sp.num_components - 1):
+        c = np.zeros(sp.num_components)
+        c[k] = 1.0
+        assert np.linalg.norm(sp.offset_mm(c)) == pytest.approx(sp.std_mm[k], rel=1e-5)
+    # per point, the spread of faces is millimetres, not centimetres: plausible variety
+    rms = float(np.sqrt((sp.std_mm**2).sum() / 468))
+    assert 1.0 < rms < 8.0
+    with pytest.raises(ValueError, match="expected shape"):
+        sp.offset_mm(np.zeros(3))
+
+
+def test_the_shape_space_leaves_out_pose_and_size():
+    """Residuals after similarity alignment: no component is a rotation, a shift or a scaling of the mean."""
+    from facemesh.face_models.shape_space import shape_space
+
+    sp = shape_space()
+    m = sp.mean_mm - sp.mean_mm.mean(axis=0)
+    moves = [m / np.linalg.norm(m)]  # scaling
+    for axis in np.eye(3):
+        shift = np.tile(axis, (len(m), 1))
+        moves.append(shift / np.linalg.norm(shift))
+        rot = np.cross(axis, m)  # an infinitesimal rotation about the centroid
+        moves.append(rot / np.linalg.norm(rot))
+    for comp in sp.components:
+        for mv in moves:
+            assert abs(float((comp * mv).sum())) < 0.2
+
+
+# --------------------------------------------------------------------------- the identity draw
+
+
+def test_identity_draws_stay_in_their_ranges_and_repeat_with_the_seed():
+    s = SimSettings()
+    draws = [draw_subject(s, np.random.default_rng([0, i])) for i in range(200)]
+    assert draw_subject(s, np.random.default_rng([0, 5])) == draws[5]
+    for d in draws:
+        assert s.eyeball_radius_range_mm[0] <= d.eyeball_radius_mm <= s.eyeball_radius_range_mm[1]
+        assert s.iris_radius_range_mm[0] <= d.iris_radius_mm <= s.iris_radius_range_mm[1]
+        assert s.pupil_radius_range_mm[0] <= d.pupil_radius_mm <= s.pupil_radius_range_mm[1]
+        assert s.hole_scale_range[0] <= d.hole_scale <= s.hole_scale_range[1]
+        assert len(d.shape_coefficients) == 12
+        json.dumps(d.as_dict())  # recorded in simulation.jsonl
+    glasses = sum(d.glasses is not None for d in draws) / len(draws)
+    own_iris = sum(d.iris_rgb is None for d in draws) / len(draws)
+    assert 0.12 < glasses < 0.38 and 0.18 < own_iris < 0.42  # shares 0.25 and 0.3
+    fixed = draw_subject(SimSettings(vary_identity=False, kappa_deg=0.0), np.random.default_rng(0))
+    assert fixed == SubjectDraw(
+        eyeball_radius_mm=12.0, iris_radius_mm=6.0, pupil_radius_mm=2.0, hole_scale=0.92, kappa_deg=(0.0, 0.0)
+    )
+
+
+# --------------------------------------------------------------------------- shaders
+
+
+def test_light_factor_by_hand():
+    light = Light(np.array([0.0, 0.0, -1.0]), ambient=0.4, reference=0.9)
+    n = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -math.sin(0.5), -math.cos(0.5)]])
+    want = np.array([1.0, 0.4, 0.4, 0.4 + 0.6 * math.cos(0.5)]) / (0.4 + 0.6 * 0.9)
+    np.testing.assert_allclose(light.factor(n), want, atol=1e-12)
+
+
+def test_lit_shader_interpolates_vertex_normals():
+    tri = np.array([[0, 1, 2]])
+    normals = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    light = Light(np.array([0.0, 0.0, -1.0]), ambient=0.0, reference=1.0)
+    base = FlatShader((100.0, 100.0, 100.0))
+    lit = LitShader(base, normals, tri, light)
+    rays = np.zeros((2, 6), np.float32)
+    # at the first corner the normal faces the light: full colour; halfway to the second corner the
+    # interpolated normal (0.5, 0, -0.5) normalized makes 45 deg with the light: cos 45 deg
+    f = Fragments(
+        mesh_id=np.zeros(2, np.int32),
+        triangle_id=np.zeros(2, np.int32),
+        barycentrics=np.array([[0.0, 0.0], [0.5, 0.0]], np.float32),
+        distance=np.ones(2, np.float32),
+    )
+    out = lit(f, rays, np.array([True, True]))
+    np.testing.assert_allclose(out[:, 0], [100.0, 100.0 * math.cos(math.pi / 4)], atol=1e-3)
+
+
+def test_vertex_normals_of_a_flat_square():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    t = np.array([[0, 1, 2], [0, 2, 3]])
+    np.testing.assert_allclose(vertex_normals(v, t), np.tile([0.0, 0.0, 1.0], (4, 1)))
+
+
+def _eye_hits(angles_deg, shader):
+    c = shader.centre_mm
+    a = np.radians(angles_deg)
+    points = c + shader.radius_mm * np.stack([np.sin(a), np.zeros(len(a)), -np.cos(a)], axis=1)
+    rays = np.zeros((len(a), 6), dtype=np.float32)
+    rays[:, :3] = points - [0.0, 0.0, 1.0]
+    rays[:, 5] = 1.0
+    return shader(_fragments(len(a)), rays, np.ones(len(a), bool))
+
+
+def test_soft_limbus_blends_half_way_at_the_iris_edge():
+    c = np.array([0.0, 0.0, 100.0])
+    iris_rgb = np.array([100.0, 80.0, 60.0])
+    hard = EyeballShader(c, np.array([0.0, 0.0, -1.0]), 12.0, 6.0, 2.0, iris_rgb)
+    soft = EyeballShader(c, np.array([0.0, 0.0, -1.0]), 12.0, 6.0, 2.0, iris_rgb, limbus_soft_deg=4.0)
+    edge = 30.0  # asin(6 / 12)
+    h = _eye_hits([edge - 0.01, edge + 0.01, edge - 3.0, edge + 3.0], hard)
+    s = _eye_hits([edge, edge - 3.0, edge + 3.0], soft)
+    np.testing.assert_allclose(s[0], 0.5 * (h[0] + h[1]), atol=0.5)  # the smoothstep's midpoint
+    np.testing.assert_allclose(s[1:], h[2:], atol=1e-3)  # outside the band: unchanged
+
+
+def test_corneal_highlight_peaks_at_the_mirror_direction():
+    c = np.array([0.0, 0.0, 100.0])
+    light = Light(np.array([0.0, 0.0, -1.0]), ambient=1.0, specular=150.0)
+    eye = EyeballShader(c, np.array([0.0, 0.0, -1.0]), 12.0, 6.0, 2.0, np.array([100.0, 80.0, 60.0]), light=light)
+    plain = EyeballShader(c, np.array([0.0, 0.0, -1.0]), 12.0, 6.0, 2.0, np.array([100.0, 80.0, 60.0]))
+    # viewer and light both along -z: the mirror point is the cornea's apex (0 deg)
+    diff = _eye_hits([0.0, 8.0], eye) - _eye_hits([0.0, 8.0], plain)
+    np.testing.assert_allclose(diff[0], 150.0, atol=1e-3)
+    assert (diff[1] < 5.0).all()  # cos(8 deg)^400 ~ 0.02
+
+
+# --------------------------------------------------------------------------- subjects
+
+
+@pytest.fixture(scope="module")
+def photo(detector):
+    from facemesh.build import sample_image
+    from gazeaug.simulate import PhotoFace
+
+    return PhotoFace.from_image(sample_image(), detector, "astronaut")
+
+
+def _interocular(subj):
+    return float(np.linalg.norm(subj.eye_centre["left"] - subj.eye_centre["right"]))
+
+
+def test_head_scale_scales_the_eyes_distance(photo):
+    from gazeaug.simulate import SimSubject
+
+    s = SimSettings()
+    base = SimSubject(photo, "a", s, SubjectDraw())
+    big = SimSubject(photo, "b", s, SubjectDraw(head_scale=1.1))
+    assert _interocular(big) == pytest.approx(1.1 * _interocular(base), rel=1e-9)
+    # a shape draw moves the landmarks by the shape space's offset (before the eye openings shrink)
+    from facemesh.face_models.shape_space import shape_space
+
+    c = np.zeros(12)
+    c[0] = 2.0
+    moved = SimSubject(photo, "c", s, SubjectDraw(shape_coefficients=tuple(c)))
+    nose = 4  # a landmark on no eye contour
+    np.testing.assert_allclose(moved.head[nose] - base.head[nose], shape_space().offset_mm(c)[nose], atol=1e-9)
+
+
+def test_glasses_show_in_front_of_the_eyes(photo):
+    from gazeaug.simulate import SimSubject
+
+    s = SimSettings(relight=False, brightness=(1.0, 1.0), blur_sigma_px=(0.0, 0.0), noise_sigma=(0.0, 0.0))
+    g = Glasses(rim_mm=4.0, rgb=(200.0, 20.0, 20.0))
+    subj = SimSubject(photo, "g", s, SubjectDraw(glasses=g))
+    k = np.array([[800.0, 0, 319.5], [0, 800.0, 239.5], [0, 0, 1]])
+    r, t = np.eye(3), np.array([0.0, 0.0, 450.0])
+    frame = subj.render(r, t, np.array([0.0, 0.0, 0.0]), k, (640, 480), np.random.default_rng(0))
+    # the middle of the outer side of each rim: centre + (half width + rim / 2) along x, in front of the eye
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        c = subj.eye_centre[side]
+        p = np.array([c[0] + sign * (g.half_width_mm + g.rim_mm / 2), c[1] + g.drop_mm, c[2] - g.distance_mm]) + t
+        u, v = (k @ p)[:2] / p[2]
+        px = frame.image[int(round(v)), int(round(u))].astype(float)
+        np.testing.assert_allclose(px, g.rgb, atol=30)  # JPEG
+
+
+def test_simulate_records_identities(tmp_path):
+    from gazeaug.datasets import open_dataset
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import simulate
+
+    out = tmp_path / "sim"
+    summary = simulate([None], BUILTIN_RIGS["screen"], out, per_face=4, identities_per_face=2, progress=False)
+    assert summary["subjects"] == 2
+    subjects = [s.subject for s in open_dataset(out)]
+    assert subjects == ["sim00i00", "sim00i01", "sim00i00", "sim00i01"]
+    rows = [json.loads(line) for line in (out / "simulation.jsonl").read_text().splitlines()]
+    assert rows[0]["subject_draw"] == rows[2]["subject_draw"] != rows[1]["subject_draw"]
+    assert set(rows[0]["light"]) == {"direction", "ambient", "specular"}
+    with pytest.raises(Exception, match="identities per face"):
+        simulate([None], BUILTIN_RIGS["screen"], tmp_path / "x", per_face=2, identities_per_face=3, progress=False)
+
+
+def test_simulate_takes_face_sources_and_records_the_person(tmp_path):
+    from facemesh.build import sample_image
+    from gazeaug.faces import FaceSource
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import simulate
+
+    src = FaceSource(name="clip@t=1.00s", image=sample_image(), origin="clip.mp4@t=1.00s", person="clip")
+    out = tmp_path / "sim"
+    simulate([src], BUILTIN_RIGS["screen"], out, per_face=1, progress=False)
+    row = json.loads((out / "simulation.jsonl").read_text().splitlines()[0])
+    assert row["person"] == "clip" and row["source_face"] == "clip.mp4@t=1.00s"

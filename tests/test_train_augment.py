@@ -1,0 +1,279 @@
+"""Training-time augmentation (gazeaug.train_augment), the grey + equalized input mode, the prefetched data path."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="the gaze model needs torch (pip install 'gazeaug[train]')")
+
+from helpers import synthetic_h5  # noqa: E402
+
+from gazeaug.cli import main  # noqa: E402
+from gazeaug.errors import GazeAugError  # noqa: E402
+from gazeaug.models.preprocess import (  # noqa: E402
+    PREPROCESSING,
+    equalize_grey,
+    eyes_to_float,
+    prepare_inputs,
+    scale_eyes,
+)
+from gazeaug.train import (  # noqa: E402
+    H5TrainingSet,
+    TrainSettings,
+    load_model,
+    predict_arrays,
+    prefetch_batches,
+    train,
+)
+from gazeaug.train_augment import (  # noqa: E402
+    TrainAugment,
+    augment_eyes,
+    augment_generator,
+    translate_blur,
+)
+
+
+def _patches(n=6, seed=0):
+    rng = np.random.default_rng(seed)
+    return torch.from_numpy(rng.integers(0, 256, (n, 36, 60, 3), dtype=np.uint8))
+
+
+# --- geometry and blur, with known parameters --------------------------------------------------------------
+
+
+def _float(img):
+    return img.permute(0, 3, 1, 2).float()
+
+
+@pytest.mark.parametrize("method", ["matmul", "conv"])
+def test_shift_moves_a_bright_pixel_by_the_shift(method):
+    img = torch.zeros((2, 36, 60, 3), dtype=torch.uint8)
+    img[:, 10, 20] = 255
+    out = translate_blur(_float(img), torch.tensor([[0, 2], [3, -1]]), torch.zeros(2), 4, method=method)
+    assert out.dtype == torch.float32 and out.shape == (2, 3, 36, 60)
+    assert [tuple(map(int, p)) for p in torch.nonzero(out[0, 0])] == [(10, 22)]  # right by 2
+    assert [tuple(map(int, p)) for p in torch.nonzero(out[1, 0])] == [(13, 19)]  # down 3, left 1
+    assert float(out[0, 0, 10, 22]) == 255.0 and float(out[1, 2, 13, 19]) == 255.0  # moved, exactly
+
+
+@pytest.mark.parametrize("method", ["matmul", "conv"])
+def test_shift_reflects_the_border(method):
+    img = torch.zeros((1, 36, 60, 3), dtype=torch.uint8)
+    img[0, 2] = 200  # row 2 bright
+    out = translate_blur(_float(img), torch.tensor([[2, 0]]), torch.zeros(1), 3, method=method)
+    # out[y] = img[y - 2]: row 4 is the old row 2; rows 0, 1 read rows -2, -1, reflected: 2, 1
+    assert torch.nonzero(out[0, 0, :, 0]).flatten().tolist() == [0, 4]
+    assert torch.equal(
+        translate_blur(_float(img), torch.zeros((1, 2), dtype=torch.long), torch.zeros(1), 3), _float(img)
+    )
+
+
+@pytest.mark.parametrize("method", ["matmul", "conv"])
+def test_blur_of_a_point_is_the_normalized_gaussian(method):
+    x = torch.zeros((2, 3, 36, 60))
+    x[:, :, 18, 30] = 255.0
+    shift = torch.tensor([[0, 0], [1, -2]])
+    out = translate_blur(x, shift, torch.tensor([0.0, 1.0]), 4, method=method)
+    np.testing.assert_allclose(out[0].numpy(), x[0].numpy(), atol=1e-4)  # sigma 0: unchanged
+    d = np.arange(-4, 5)
+    g = np.exp(-(d**2) / 2.0)
+    g /= g.sum()
+    expected = 255.0 * np.outer(g, g)  # centred on the shifted point (19, 28)
+    np.testing.assert_allclose(out[1, 1, 15:24, 24:33].numpy(), expected, rtol=1e-5, atol=1e-4)
+    assert float(out[1].sum()) == pytest.approx(3 * 255.0, rel=1e-5)  # mass kept away from the border
+
+
+def test_both_methods_agree():
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand((8, 3, 12, 20), generator=gen) * 255
+    shift = torch.randint(-5, 6, (8, 2), generator=gen)
+    sigma = torch.rand(8, generator=gen) * 2
+    a = translate_blur(x, shift, sigma, 6, method="matmul")
+    b = translate_blur(x, shift, sigma, 6, method="conv")
+    np.testing.assert_allclose(a.numpy(), b.numpy(), atol=1e-3)
+
+
+# --- the augmentation as a whole ---------------------------------------------------------------------------
+
+
+def test_off_is_identity_and_draws_nothing():
+    eyes = _patches()
+    g = augment_generator(0, 0)
+    state = g.get_state().clone()
+    out = augment_eyes(eyes, TrainAugment(enabled=False), g)
+    assert out.dtype == torch.float32 and out.shape == (6, 3, 36, 60)
+    assert torch.equal(out, eyes.permute(0, 3, 1, 2).float())
+    assert torch.equal(g.get_state(), state)
+
+
+def test_same_seed_same_output_and_values_in_range():
+    eyes = _patches()
+    a = augment_eyes(eyes, TrainAugment(), augment_generator(7, 3))
+    b = augment_eyes(eyes, TrainAugment(), augment_generator(7, 3))
+    c = augment_eyes(eyes, TrainAugment(), augment_generator(7, 4))
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    assert a.dtype == torch.float32 and a.shape == (6, 3, 36, 60)
+    assert float(a.min()) >= 0.0 and float(a.max()) <= 255.0
+    assert float((a - eyes_to_float(eyes)).abs().mean()) > 1.0  # it does change the patches
+    strong = TrainAugment(shift_px=16, blur_sigma=3, colour=0.99, contrast=0.99, brightness=128, gamma=4, noise=64)
+    s = augment_eyes(eyes, strong, augment_generator(0, 0))
+    assert bool(torch.isfinite(s).all()) and float(s.min()) >= 0.0 and float(s.max()) <= 255.0
+    # each patch its own draws: one patch repeated comes out differently
+    same = augment_eyes(eyes[:1].repeat(4, 1, 1, 1), TrainAugment(), augment_generator(0, 0))
+    assert not torch.equal(same[0], same[1])
+
+
+def test_only_the_shift_moves_content_by_whole_pixels():
+    eyes = torch.zeros((64, 36, 60, 3), dtype=torch.uint8)
+    eyes[:, 18, 30] = 255
+    only_shift = TrainAugment(blur_sigma=0, colour=0, contrast=0, brightness=0, gamma=0, noise=0, shift_px=3)
+    out = augment_eyes(eyes, only_shift, augment_generator(1, 0))
+    for img in out:
+        (y, x) = torch.nonzero(img[0] > 128).flatten().tolist()
+        assert abs(y - 18) <= 3 and abs(x - 30) <= 3
+        assert float(img.max()) == 255.0 and int((img > 0).sum()) == 3  # moved, not altered
+    shifts = {tuple(torch.nonzero(img[0] > 128).flatten().tolist()) for img in out}
+    assert len(shifts) > 10  # drawn per sample
+
+
+def test_settings_are_validated():
+    with pytest.raises(GazeAugError, match=r"brightness: expected a number in \[0, 128\] grey levels, got -1"):
+        TrainAugment(brightness=-1)
+    with pytest.raises(GazeAugError, match=r"shift_px: expected an integer in \[0, 16\] pixels, got 2.5"):
+        TrainAugment(shift_px=2.5)
+    with pytest.raises(GazeAugError, match=r"contrast: expected a number in \[0, 1\), got 1"):
+        TrainAugment(contrast=1)
+    with pytest.raises(GazeAugError, match="blur_sigma: expected a number"):
+        TrainAugment(blur_sigma=float("nan"))
+    with pytest.raises(GazeAugError, match="enabled: expected True or False"):
+        TrainAugment(enabled="no")
+    with pytest.raises(GazeAugError, match="input mode: expected one of rgb, grey_equalized, got 'gray'"):
+        TrainSettings(input_mode="gray")
+    with pytest.raises(GazeAugError, match="augment: expected a TrainAugment"):
+        TrainSettings(augment={"enabled": False})
+
+
+# --- grey + histogram equalization -------------------------------------------------------------------------
+
+
+def test_equalization_of_known_ramps():
+    full = torch.arange(256, dtype=torch.float32).view(1, 16, 16)  # every level once: cdf(v) = v + 1
+    assert torch.equal(equalize_grey(full), full)
+    half = (torch.arange(256) // 2).float().view(1, 16, 16)  # levels 0..127, twice each
+    # cdf(v) = 2 (v + 1), cdf(vmin) = 2, 256 pixels: v -> round(2 v * 255 / 254) = round(v * 255 / 127)
+    expected = torch.round(half * 255.0 / 127.0)
+    assert torch.equal(equalize_grey(half), expected)
+    assert float(equalize_grey(half)[0, 8, 0]) == 129.0  # level 64: 64 * 255 / 127 = 128.50... -> 129
+    narrow = (100 + torch.arange(256) // 16).float().view(1, 16, 16)  # levels 100..115, 16 each
+    out = equalize_grey(narrow)
+    assert float(out.min()) == 0.0 and float(out.max()) == 255.0  # stretched to the full range
+    assert torch.equal(out[0, 0], torch.full((16,), 0.0)) and float(out[0, 1, 0]) == 17.0  # 16 * 255 / 240
+    flat = torch.full((2, 4, 4), 77.0)  # one level: kept as is
+    assert torch.equal(equalize_grey(flat), flat)
+
+
+def test_grey_equalized_matches_opencv():
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(3)
+    imgs = np.concatenate(
+        [
+            rng.integers(0, 256, (2, 36, 60, 3)),
+            rng.integers(90, 140, (2, 36, 60, 3)),  # low contrast
+            (rng.normal(60, 10, (2, 36, 60, 3))).clip(0, 255),  # dark
+        ]
+    ).astype(np.uint8)
+    left, right, _ = prepare_inputs(imgs, imgs, np.zeros((6, 2)), "grey_equalized")
+    assert left.shape == (6, 3, 36, 60) and torch.equal(left, right)
+    assert torch.equal(left[:, 0], left[:, 1]) and torch.equal(left[:, 0], left[:, 2])  # replicated grey
+    for i, img in enumerate(imgs):
+        expected = cv2.equalizeHist(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)).astype(np.float32) / 127.5 - 1
+        np.testing.assert_array_equal(left[i, 0].numpy(), expected)
+    # rgb is unchanged: x / 127.5 - 1
+    rgb, _, _ = prepare_inputs(imgs, imgs, np.zeros((6, 2)))
+    np.testing.assert_array_equal(rgb.numpy(), imgs.transpose(0, 3, 1, 2).astype(np.float32) / 127.5 - 1)
+    # the training path (float patches on the device) gives the same as inference on uint8
+    np.testing.assert_array_equal(scale_eyes(eyes_to_float(torch.from_numpy(imgs)), "grey_equalized"), left)
+
+
+# --- training, model files, the command line ---------------------------------------------------------------
+
+
+def test_grey_equalized_model_records_and_applies_its_input(tmp_path):
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32)
+    args = ["train", str(h5), "-o", str(tmp_path / "g.pt"), "--epochs", "1", "--batch-size", "16", "--quiet"]
+    assert main([*args, "--input", "grey_equalized", "--no-augment"]) == 0
+    raw = torch.load(tmp_path / "g.pt", weights_only=True)
+    assert raw["preprocessing"]["input"] == "grey_equalized" and raw["preprocessing"]["version"] == 2
+    assert raw["train_settings"]["input_mode"] == "grey_equalized"
+    assert raw["train_settings"]["augment"]["enabled"] is False
+    model, meta = load_model(tmp_path / "g.pt")
+    assert meta["input_mode"] == "grey_equalized"
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (5, 36, 60, 3), dtype=np.uint8)
+    right = rng.integers(0, 256, (5, 36, 60, 3), dtype=np.uint8)
+    head = rng.uniform(-0.3, 0.3, (5, 2)).astype(np.float32)
+    seen = []
+    hook = model.register_forward_pre_hook(lambda _m, inputs: seen.append(inputs))
+    got = predict_arrays(model, left, right, head)
+    hook.remove()
+    grey = prepare_inputs(left, right, head, "grey_equalized")
+    for fed, want in zip(seen[0], grey):  # the model was fed grey, equalized patches
+        assert torch.equal(fed, want)
+    with torch.no_grad():
+        np.testing.assert_allclose(got, model(*grey).numpy(), atol=1e-6)
+    # a model of an older gazeaug (version 1, no 'input') is RGB; contradictory records are refused
+    raw["preprocessing"] = {k: v for k, v in PREPROCESSING.items() if k != "input"}
+    torch.save(raw, tmp_path / "old.pt")
+    old, meta = load_model(tmp_path / "old.pt")
+    assert meta["input_mode"] == "rgb"
+    raw["preprocessing"] = {**raw["preprocessing"], "input": "grey_equalized"}  # version 1 cannot say that
+    torch.save(raw, tmp_path / "bad.pt")
+    with pytest.raises(GazeAugError, match="made with another input preprocessing"):
+        load_model(tmp_path / "bad.pt")
+
+
+def test_training_is_reproducible_and_old_checkpoints_say_what_to_do(tmp_path):
+    h5 = synthetic_h5(tmp_path / "t.h5", n=48)
+    s = TrainSettings(epochs=1, batch_size=16, seed=3)
+    train(h5, tmp_path / "a.pt", s, progress=False)
+    train(h5, tmp_path / "b.pt", s, progress=False)
+    raw = torch.load(tmp_path / "a.pt", weights_only=True)
+    # an RGB model (the default) records its input too, and augmentation is on by default
+    assert raw["preprocessing"] == PREPROCESSING and raw["train_settings"]["augment"]["enabled"] is True
+    a, b = raw["state_dict"], torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+    # a checkpoint of an older gazeaug: no augment, no input_mode in its settings
+    off = TrainSettings(epochs=1, batch_size=16, seed=3, augment=TrainAugment(enabled=False))
+    train(h5, tmp_path / "o.pt", off, progress=False)
+    ck = torch.load(tmp_path / "o.ckpt.pt", weights_only=True)
+    del ck["settings"]["augment"], ck["settings"]["input_mode"]
+    torch.save(ck, tmp_path / "o.ckpt.pt")
+    with pytest.raises(GazeAugError, match="older gazeaug, without training-time augmentation.*--no-augment"):
+        train(h5, tmp_path / "o.pt", s, resume=True, progress=False)
+    assert len(train(h5, tmp_path / "o.pt", off, resume=True, progress=False)) == 1  # as it was trained: accepted
+
+
+def test_prefetch_keeps_the_order_and_passes_errors_on(tmp_path):
+    data = H5TrainingSet(synthetic_h5(tmp_path / "t.h5", n=40))
+    direct = list(data.batches(16, np.random.default_rng(5)))
+    fetched = list(prefetch_batches(data, 16, np.random.default_rng(5), depth=2))
+    assert [len(b["gaze"]) for b, _ in fetched] == [16, 16, 8]
+    for want, (got, tensors) in zip(direct, fetched):
+        np.testing.assert_array_equal(want["gaze"], got["gaze"])
+        np.testing.assert_array_equal(tensors["eyes"].numpy(), np.concatenate([want["left_eye"], want["right_eye"]]))
+        assert tensors["eyes"].dtype == torch.uint8 and tensors["gaze"].dtype == torch.float32
+    with contextlib.closing(prefetch_batches(data, 4, None, depth=1)) as it:  # stopped early: the thread ends
+        next(it)
+
+    class Broken(H5TrainingSet):
+        def batches(self, batch_size, rng=None):
+            yield from super().batches(batch_size, rng)
+            raise GazeAugError("disk on fire")
+
+    broken = Broken(tmp_path / "t.h5")
+    with pytest.raises(GazeAugError, match="disk on fire"):
+        list(prefetch_batches(broken, 16, None))
