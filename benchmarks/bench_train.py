@@ -92,7 +92,7 @@ def _pass(h5: Path, batch_size: int, device: Any, augment: bool) -> float:
         if augment:
             a, _, _, _ = train_inputs(tensors, device, aug, "rgb", gen)
         else:
-            a = tensors["eyes"].to(device, non_blocking=True)
+            tensors["eyes"].to(device, non_blocking=True)
         seen += len(tensors["gaze"])
     if cuda:
         torch.cuda.synchronize()
