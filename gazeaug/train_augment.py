@@ -140,10 +140,12 @@ def _reflect(idx: Any, size: int) -> Any:
 _MATMUL_MAX_SIDE = 128
 
 
-def _kernels(sigma: Any, shift: Any, radius: int) -> tuple[Any, Any]:
-    """Tap offsets (T,) int64 and weights (N, T) float32 of the shifted Gaussian: out[i] = sum w[t] in[i + off[t]]."""
+def _kernels(sigma: Any, shift: Any, radius: int, reach: int) -> tuple[Any, Any]:
+    """Tap offsets (T,) int64 and weights (N, T) float32 of the shifted Gaussian: out[i] = sum w[t] in[i + off[t]].
+
+    ``reach``: the largest offset, ``radius`` + the largest shift.
+    """
     torch = import_torch()
-    reach = radius + int(shift.abs().max()) if shift.numel() else radius
     off = torch.arange(-reach, reach + 1, device=sigma.device)
     s = sigma.float().clamp(min=1e-3).unsqueeze(1)  # below: a delta (exp underflows to 0 off the centre)
     d = (off.unsqueeze(0) + shift.unsqueeze(1)).float()  # distance of each tap from the source centre i - shift
@@ -151,17 +153,19 @@ def _kernels(sigma: Any, shift: Any, radius: int) -> tuple[Any, Any]:
     return off, w / w.sum(1, keepdim=True)
 
 
-def _matrices(sigma: Any, shift: Any, radius: int, size: int) -> Any:
+def _matrices(sigma: Any, shift: Any, radius: int, reach: int, size: int) -> Any:
     """(N, size, size) float32: row i holds the weights of the source pixels of output pixel i."""
     torch = import_torch()
-    off, w = _kernels(sigma, shift, radius)
+    off, w = _kernels(sigma, shift, radius, reach)
     n = w.shape[0]
     src = _reflect(torch.arange(size, device=w.device).view(1, size, 1) + off.view(1, 1, -1), size)
     m = torch.zeros((n, size, size), device=w.device, dtype=torch.float32)
     return m.scatter_add_(2, src.expand(n, -1, -1), w.unsqueeze(1).expand(-1, size, -1))
 
 
-def translate_blur(eyes: Any, shift_yx: Any, sigma: Any, radius: int, *, method: str = "auto") -> Any:
+def translate_blur(
+    eyes: Any, shift_yx: Any, sigma: Any, radius: int, *, max_shift: int | None = None, method: str = "auto"
+) -> Any:
     """Translate every patch by whole pixels and blur it with a Gaussian, each with its own parameters.
 
     ``out[y, x] = sum G(j) G(k) eyes[y - dy + j, x - dx + k]`` over ``|j|, |k| <= radius``, ``G`` the
@@ -174,6 +178,7 @@ def translate_blur(eyes: Any, shift_yx: Any, sigma: Any, radius: int, *, method:
             content down and to the right.
         sigma: float32 (N,), pixels, the same device.
         radius: kernel half-width, pixels (``ceil(3 * largest sigma)``).
+        max_shift: a bound of ``|shift_yx|`` (default: read from the tensor, which waits for a GPU).
         method: ``matmul`` (two matrix products per patch: the separable kernels as banded matrices),
             ``conv`` (a depthwise convolution, per-patch kernels; ``matmul`` where the kernel reaches
             beyond the side) or ``auto`` (``matmul`` for sides up to 128 pixels). The same result up
@@ -187,19 +192,19 @@ def translate_blur(eyes: Any, shift_yx: Any, sigma: Any, radius: int, *, method:
     n, c, h, w = eyes.shape
     if n == 0:
         return eyes
-    offv, wv = _kernels(sigma, shift_yx[:, 0], radius)
-    offh, wh = _kernels(sigma, shift_yx[:, 1], radius)
-    pv, ph = int(offv[-1]), int(offh[-1])
+    reach = radius + (int(shift_yx.abs().max()) if max_shift is None else int(max_shift))
     if method == "auto":
         method = "matmul" if max(h, w) <= _MATMUL_MAX_SIDE else "conv"
-    if method == "matmul" or pv >= h or ph >= w:  # a reflect pad must be shorter than the side
-        mv = _matrices(sigma, shift_yx[:, 0], radius, h)  # (N, H, H)
-        mh = _matrices(sigma, shift_yx[:, 1], radius, w)  # (N, W, W)
+    if method == "matmul" or reach >= min(h, w):  # a reflect pad must be shorter than the side
+        mv = _matrices(sigma, shift_yx[:, 0], radius, reach, h)  # (N, H, H)
+        mh = _matrices(sigma, shift_yx[:, 1], radius, reach, w)  # (N, W, W)
         y = torch.bmm(mv, eyes.transpose(1, 2).reshape(n, h, c * w))  # rows: (N, H, C*W)
         y = torch.bmm(y.view(n, h * c, w), mh.transpose(1, 2))  # columns: (N, H*C, W)
         return y.view(n, h, c, w).transpose(1, 2).contiguous(memory_format=torch.channels_last)
     fn = torch.nn.functional
-    x = fn.pad(eyes.reshape(1, n * c, h, w), (ph, ph, pv, pv), mode="reflect")
+    _, wv = _kernels(sigma, shift_yx[:, 0], radius, reach)
+    _, wh = _kernels(sigma, shift_yx[:, 1], radius, reach)
+    x = fn.pad(eyes.reshape(1, n * c, h, w), (reach, reach, reach, reach), mode="reflect")
     x = fn.conv2d(x, wh.repeat_interleave(c, 0).view(n * c, 1, 1, -1), groups=n * c)
     x = fn.conv2d(x, wv.repeat_interleave(c, 0).view(n * c, 1, -1, 1), groups=n * c)
     return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
@@ -239,7 +244,7 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     noise_std = uniform(0.0, augment.noise)
     x = eyes_to_float(eyes)
     if augment.shift_px or augment.blur_sigma > 0:
-        x = translate_blur(x, shift, sigma, math.ceil(3 * augment.blur_sigma))
+        x = translate_blur(x, shift, sigma, math.ceil(3 * augment.blur_sigma), max_shift=augment.shift_px)
     x = x * gain.view(n, 3, 1, 1)
     mean = x.mean(dim=(1, 2, 3), keepdim=True)
     x = x.sub_(mean).mul_(contrast.view(n, 1, 1, 1)).add_(mean + offset.view(n, 1, 1, 1)).clamp_(0, 255)

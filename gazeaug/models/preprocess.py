@@ -148,7 +148,12 @@ def equalize_grey(grey: Any) -> Any:
     q = grey.reshape(n, -1).long()
     total = q.shape[1]
     offsets = torch.arange(n, device=q.device).mul_(256).unsqueeze(1)
-    hist = torch.bincount((q + offsets).reshape(-1), minlength=n * 256).view(n, 256)
+    flat = (q + offsets).reshape(-1)
+    if flat.device.type == "cpu":  # bincount is the fastest there; on a GPU it waits to size its output
+        hist = torch.bincount(flat, minlength=n * 256).view(n, 256)
+    else:
+        hist = torch.zeros(n * 256, dtype=torch.int64, device=flat.device)
+        hist = hist.index_add_(0, flat, torch.ones_like(flat)).view(n, 256)
     cdf = hist.cumsum(1)
     hmin = hist.gather(1, q.amin(1, keepdim=True))  # (N, 1): pixels at the darkest level
     denom = total - hmin
