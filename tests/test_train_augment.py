@@ -116,6 +116,7 @@ def test_same_seed_same_output_and_values_in_range():
     c = augment_eyes(eyes, TrainAugment(), augment_generator(7, 4))
     assert torch.equal(a, b) and not torch.equal(a, c)
     assert a.dtype == torch.float32 and a.shape == (6, 3, 36, 60)
+    assert a.is_contiguous(memory_format=torch.channels_last)  # the model steps 1.5-2 x faster on it
     assert float(a.min()) >= 0.0 and float(a.max()) <= 255.0
     assert float((a - eyes_to_float(eyes)).abs().mean()) > 1.0  # it does change the patches
     strong = TrainAugment(shift_px=16, blur_sigma=3, colour=0.99, contrast=0.99, brightness=128, gamma=4, noise=64)
