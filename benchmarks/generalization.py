@@ -30,23 +30,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-TRAIN_PHOTOS = (
-    "astronaut.png",
-    "business-person.png",
-    "sergey.png",
-    "pexels/image00.jpg",
-    "pexels/image01.jpg",
-    "aflw_deca/AFLW2000_image00202.jpg",
-    "aflw_deca/AFLW2000_image00302.jpg",
-    "aflw_deca/AFLW2000_image00408.jpg",
-    "aflw_deca/AFLW2000_image00480.jpg",
-)
+from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
 
 
 def test_people(data: Path, work: Path) -> list[Path]:
     """The other people's face pictures, written as PNG files under ``work`` (one per person)."""
     import cv2
-    from people import other_people  # benchmarks/people.py
 
     out = []
     work.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["similarity_transform", "apply_similarity"]
+__all__ = ["similarity_transform", "apply_similarity", "vertex_normals"]
 
 
 def similarity_transform(
@@ -39,3 +39,31 @@ def apply_similarity(points: ArrayLike, s: float, r: ArrayLike, t: ArrayLike) ->
     """``s * R @ p + t`` for each row p of an (N, 3) array."""
     p = np.asarray(points, dtype=np.float64)
     return s * p @ np.asarray(r, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+
+
+def vertex_normals(
+    positions: ArrayLike, triangles: ArrayLike, fallback: ArrayLike = (0.0, 0.0, 1.0)
+) -> NDArray[np.float64]:
+    """Area-weighted unit vertex normals: the sum of the right-hand normals of the triangles at each vertex.
+
+    Args:
+        positions: (N, 3) float, any frame and unit.
+        triangles: (M, 3) int vertex indices; a triangle's normal is ``(v1 - v0) x (v2 - v0)``.
+        fallback: (3,) unit vector given to vertices that no triangle (or only degenerate ones) touches.
+
+    Returns:
+        (N, 3) float64 unit vectors, the positions' frame.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    acc = np.zeros_like(pos)
+    if len(tri):
+        a, b, c = (pos[tri[:, k]] for k in range(3))
+        face = np.cross(b - a, c - a)  # length = 2 * area: area weighting
+        for k in range(3):
+            np.add.at(acc, tri[:, k], face)
+    norm = np.linalg.norm(acc, axis=1)
+    good = norm > 1e-12 * max(1.0, float(np.abs(pos).max(initial=0.0))) ** 2
+    out = np.tile(np.asarray(fallback, dtype=np.float64), (len(pos), 1))
+    out[good] = acc[good] / norm[good, None]
+    return out

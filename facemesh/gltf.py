@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from ._native import native_stderr_silenced
 from .conventions import gltf_to_opencv_points, opencv_to_gltf_directions, opencv_to_gltf_points
+from .geometry import vertex_normals
 from .io import _check_pixel_count, _header_size, atomic_write
 from .types import CameraIntrinsics, FaceKeypoints, FaceLandmarks, FaceMesh, HeadPose, InputError
 
@@ -153,17 +154,7 @@ def _vertex_normals(positions: NDArray[np.float64], triangles: NDArray[np.int64]
         glTF axes (``(0, 0, 1)``) where no triangle (or only degenerate ones)
         touches a vertex.
     """
-    acc = np.zeros_like(positions)
-    if len(triangles):
-        a, b, c = (positions[triangles[:, k]] for k in range(3))
-        face = np.cross(b - a, c - a)  # length = 2 * area: area weighting
-        for k in range(3):
-            np.add.at(acc, triangles[:, k], face)
-    norm = np.linalg.norm(acc, axis=1)
-    good = norm > 1e-12 * max(1.0, float(np.abs(positions).max(initial=0.0))) ** 2
-    out = np.tile(_TOWARD_CAMERA_GLTF, (len(positions), 1))
-    out[good] = acc[good] / norm[good, None]
-    return out.astype(np.float32)
+    return vertex_normals(positions, triangles, fallback=_TOWARD_CAMERA_GLTF).astype(np.float32)
 
 
 def _metadata(mesh: FaceMesh) -> dict[str, Any]:

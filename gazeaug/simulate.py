@@ -367,7 +367,7 @@ class PhotoFace:
         from facemesh.camera import camera_for_image
 
         from .pipeline import fit_face, mesh_for_fit
-        from .render.base import _boundary_loops, render_mesh
+        from .render.base import render_mesh
 
         h, w = image.shape[:2]
         fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=source)
@@ -382,13 +382,6 @@ class PhotoFace:
         drop = np.zeros(len(tri), dtype=bool)
         for loop in eye_contours().values():
             drop |= np.isin(tri, np.asarray(loop)).all(axis=1)  # the triangles that close the eye opening
-        # ring vertex n + k m + j follows the outer contour's j-th vertex (see render_mesh)
-        extra = len(head) - n
-        parent = np.zeros(0, dtype=np.int64)
-        if extra:
-            loops = _boundary_loops(np.asarray(mesh.triangles, dtype=np.int64).tobytes())
-            outer = np.asarray(max(loops, key=lambda lp: float(np.ptp(head[lp], axis=0).sum())), dtype=np.int64)
-            parent = np.tile(outer, extra // len(outer))
         iris = {side: _iris_colour(image, fit.landmarks.points_px, side) for side in ("left", "right")}
         return cls(
             source,
@@ -397,7 +390,7 @@ class PhotoFace:
             np.asarray(rm.uv),
             np.ascontiguousarray(rm.texture),
             n,
-            parent,
+            rm.ring_parent,
             iris,
         )
 
@@ -580,7 +573,9 @@ class SimSubject:
         """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame)."""
         import cv2
 
-        from .render.shaders import EyeballShader, FlatShader, Light, LitShader, vertex_normals
+        from facemesh.geometry import vertex_normals
+
+        from .render.shaders import EyeballShader, FlatShader, Light, LitShader
 
         s, d = self.settings, self.draw
         r, t = np.asarray(head_rotation), np.asarray(head_translation_mm)
@@ -633,8 +628,11 @@ class SimSubject:
             gv, gt = self.glasses
             gposed = gv @ r.T + t
             gid = caster.add_mesh(gposed, gt)
-            gn = np.tile(-r[:, 2], (len(gv), 1))  # the frame faces forward (head -z)
-            shaders[gid] = FlatShader(d.glasses.rgb, gn, gt, light)
+            frame_shader: Shader = FlatShader(d.glasses.rgb)
+            if light is not None:
+                gn = np.tile(-r[:, 2], (len(gv), 1))  # the frame faces forward (head -z)
+                frame_shader = LitShader(frame_shader, gn, gt, light)
+            shaders[gid] = frame_shader
         w, h = size_wh
         rays = camera_rays(np.linalg.inv(camera_matrix), np.zeros(3), (w, h))
         fragments = caster.trace(rays)

@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from facemesh.geometry import vertex_normals
 from facemesh.render import Fragments
-from gazeaug.render.shaders import EyeballShader, FlatShader, Light, LitShader, vertex_normals
+from gazeaug.render.shaders import EyeballShader, FlatShader, Light, LitShader
 from gazeaug.simulate import Glasses, SimSettings, SubjectDraw, draw_subject
 
 

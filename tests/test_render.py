@@ -325,3 +325,21 @@ def test_background_rings_face_the_source_camera(assets):
     facing = np.einsum("ij,ij->i", n, -v[tri[:, 0]])  # normal . (camera centre - corner)
     ring = tri.max(axis=1) >= rm.num_face_vertices
     assert ring.sum() > 100 and (facing[ring] > 0).all()
+
+
+def test_ring_vertices_name_the_contour_vertex_they_grew_from(assets):
+    """Each ring vertex lies on the ray from the contour's centre through its parent (head frame, x and y)."""
+    rm = assets["astronaut.png"].render_mesh
+    n = rm.num_face_vertices
+    parent = rm.ring_parent
+    assert len(parent) == len(rm.vertices_mm) - n and parent.max() < n
+    mesh = assets["astronaut.png"].mesh
+    r, t = mesh.pose.rotation, mesh.pose.translation_mm
+    head = (rm.vertices_mm - t) @ r
+    outer = np.unique(parent)
+    centre = head[outer, :2].mean(axis=0)
+    a = head[n:, :2] - centre
+    b = head[parent, :2] - centre
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    np.testing.assert_allclose(cross / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)), 0.0, atol=1e-9)
+    assert ((a * b).sum(axis=1) > 0).all()  # the same side of the centre, farther out

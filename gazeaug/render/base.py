@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -65,6 +65,8 @@ class RenderMesh:
         num_face_vertices: N, the face mesh's own vertex count.
         texels_per_mm: texture pixels per mm at the head's distance in the source
             photo (``f / ||t_head||``): how much detail the texture holds.
+        ring_parent: (V - N,) int64: the face vertex (on the outer contour) each ring
+            vertex was grown from; empty without rings.
     """
 
     vertices_mm: NDArray[np.float64]
@@ -73,6 +75,7 @@ class RenderMesh:
     texture: NDArray[np.uint8]
     num_face_vertices: int
     texels_per_mm: float = 0.0
+    ring_parent: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass(frozen=True)
@@ -215,5 +218,11 @@ def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUN
     # orient the new triangles like the face: counter-clockwise seen from the source camera
     extra = orient_triangles_toward(all_v, np.concatenate(new_tri), np.zeros(3))
     return RenderMesh(
-        all_v, np.concatenate([tri, extra]), np.concatenate([uv, ring_uv]), np.asarray(mesh.texture), n, texels
+        all_v,
+        np.concatenate([tri, extra]),
+        np.concatenate([uv, ring_uv]),
+        np.asarray(mesh.texture),
+        n,
+        texels,
+        np.tile(np.asarray(outer, dtype=np.int64), len(rings)),  # ring k, vertex j grew from outer[j]
     )

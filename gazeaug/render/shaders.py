@@ -20,7 +20,7 @@ from facemesh.render import Fragments, TexelTable
 
 from ..texture import MipPyramid, sample
 
-__all__ = ["MipTextureShader", "EyeballShader", "Light", "LitShader", "FlatShader", "vertex_normals"]
+__all__ = ["MipTextureShader", "EyeballShader", "Light", "LitShader", "FlatShader"]
 
 
 class MipTextureShader:
@@ -84,18 +84,6 @@ class Light:
         return (self.ambient + (1.0 - self.ambient) * lam) / (self.ambient + (1.0 - self.ambient) * self.reference)
 
 
-def vertex_normals(vertices: NDArray[np.float64], triangles: NDArray[np.integer[Any]]) -> NDArray[np.float64]:
-    """(N, 3) float64 unit vertex normals: area-weighted sums of the triangles' right-hand normals."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    fn = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, t[:, k], fn)
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.asarray(out / np.where(norm > 0, norm, 1.0))
-
-
 @dataclass(frozen=True)
 class LitShader:
     """Another shader's colours times a :class:`Light`'s factor at the normal interpolated over each hit triangle.
@@ -130,26 +118,19 @@ class LitShader:
 
 @dataclass(frozen=True)
 class FlatShader:
-    """One colour, optionally lit (glasses frames).
+    """One colour everywhere (glasses frames); wrap it in a :class:`LitShader` to light it.
 
     Attributes:
         rgb: (3,) float RGB.
-        normals, triangles: as :class:`LitShader` (None: unlit).
-        light: the light (None: unlit).
     """
 
     rgb: tuple[float, float, float]
-    normals: NDArray[np.float64] | None = None
-    triangles: NDArray[Any] | None = None
-    light: Light | None = None
 
     def __call__(self, fragments: Fragments, rays: NDArray[np.float32], mask: NDArray[np.bool_]) -> NDArray[Any]:
         """S + (3,) float32 RGB, 0 outside ``mask``; see :class:`facemesh.render.Shader`."""
         out = np.zeros(fragments.shape + (3,), dtype=np.float32)
         out[mask] = np.asarray(self.rgb, dtype=np.float32)
-        if self.light is None or self.normals is None or self.triangles is None:
-            return out
-        return LitShader(lambda f, r, m: out, self.normals, self.triangles, self.light)(fragments, rays, mask)
+        return out
 
 
 @dataclass(frozen=True)
