@@ -48,9 +48,10 @@ def test_people(data: Path, work: Path) -> list[Path]:
 
 def main() -> None:
     """Run it."""
-    from gazeaug.experiment import BUILTIN_TRAIN, ExperimentSettings, run_experiment
+    from gazeaug.experiment import ExperimentSettings, run_experiment
     from gazeaug.sampling import BUILTIN_RIGS
     from gazeaug.simulate import SimSettings, simulate
+    from gazeaug.train import TrainSettings
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, required=True)
@@ -60,8 +61,8 @@ def main() -> None:
     ap.add_argument("--test-per-person", type=int, default=15)
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--epochs", type=int, default=BUILTIN_TRAIN.epochs)
-    ap.add_argument("--batch-size", type=int, default=BUILTIN_TRAIN.batch_size)
+    ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the augmented set's size")
+    ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
@@ -89,9 +90,8 @@ def main() -> None:
     settings = ExperimentSettings(
         per_sample=4,
         distribution=rig.distribution(),
-        train=BUILTIN_TRAIN.__class__(
-            **{**BUILTIN_TRAIN.__dict__, "epochs": args.epochs, "batch_size": args.batch_size}
-        ),
+        # the library's defaults (not the built-in setup's shorter budget): fitted to the augmented set
+        train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size),
         workers=args.workers,
         seed=args.seed,
         seeds=args.seeds,

@@ -75,6 +75,9 @@ __all__ = [
     "look_at_rotation",
     "pitchyaw_to_vector",
     "vector_to_pitchyaw",
+    "MIRROR_PITCHYAW",
+    "mirror_pitchyaw",
+    "mirrored_columns",
     "rotation_to_head_pitchyaw",
     "rotation_yaw",
     "rotation_pitch",
@@ -223,6 +226,51 @@ def vector_to_pitchyaw(vectors: ArrayLike) -> NDArray[np.float64]:
     pitch = np.arcsin(np.clip(-u[..., 1], -1.0, 1.0))
     yaw = np.arctan2(-u[..., 0], -u[..., 2])
     return np.stack([pitch, yaw], axis=-1)
+
+
+#: (2,) float64: the factors a left-right mirror of an image (its camera frame's x negated) applies
+#: to a (pitch, yaw) pair of the MPIIGaze convention: pitch kept, yaw negated (see :func:`mirror_pitchyaw`).
+MIRROR_PITCHYAW: NDArray[np.float64] = np.array([1.0, -1.0])
+
+
+def mirror_pitchyaw(pitchyaw_rad: ArrayLike) -> NDArray[np.float64]:
+    """(pitch, yaw) of a direction seen in a left-right mirrored image (the camera frame's x negated).
+
+    Convention: MPIIGaze (pitch, yaw), as :func:`pitchyaw_to_vector`. The vector
+    ``(-cos p sin y, -sin p, -cos p cos y)`` with x negated is
+    ``(cos p sin y, -sin p, -cos p cos y)``, the vector of ``(p, -y)``: the pitch is
+    kept and the yaw negated, for a gaze and for a head pose (the head's forward
+    direction) alike. A mirrored left eye patch is a right eye's.
+
+    Args:
+        pitchyaw_rad: (..., 2) float, radians.
+
+    Returns:
+        (..., 2) float64 radians, ``pitchyaw_rad * MIRROR_PITCHYAW``.
+    """
+    return _as_points(pitchyaw_rad, 2, "pitchyaw_rad") * MIRROR_PITCHYAW
+
+
+def mirrored_columns(width: int) -> NDArray[np.int64]:
+    """Source column of each column of a left-right mirrored normalized patch.
+
+    Convention: the normalized camera's principal point is ``(w / 2, h / 2)`` with pixel
+    centres at whole numbers (:func:`homogeneous_pixel_centres`), so mirroring the scene
+    about the optical axis maps column ``x`` to ``w - x`` (not ``w - 1 - x``, the plain
+    flip, which would shift the mirrored patch by one pixel). Column 0 has no source
+    (``w`` lies outside) and repeats its neighbour's.
+
+    Args:
+        width: w, the patch's width in pixels (>= 2).
+
+    Returns:
+        (w,) int64: ``[w - 1, w - 1, w - 2, ..., 1]``: ``out[x] = w - x`` for x >= 1.
+    """
+    if not (isinstance(width, (int, np.integer)) and width >= 2):
+        raise ValueError(f"width: expected an integer >= 2, got {width!r}")
+    cols = int(width) - np.arange(int(width), dtype=np.int64)
+    cols[0] = int(width) - 1
+    return cols
 
 
 def rotation_to_head_pitchyaw(rotation_head_to_camera: ArrayLike) -> NDArray[np.float64]:

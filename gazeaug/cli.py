@@ -182,8 +182,19 @@ def build_parser() -> argparse.ArgumentParser:
     tv = t.add_mutually_exclusive_group()
     tv.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
     tv.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
-    t.add_argument("--epochs", type=_positive_int, default=10)
-    t.add_argument("--batch-size", type=_positive_int, default=256)
+    t.add_argument(
+        "--epochs",
+        type=_positive_int,
+        default=None,
+        help="passes over the training set (default: fitted to its size, enough to show the model "
+        "250k samples, at least 10)",
+    )
+    t.add_argument(
+        "--batch-size",
+        type=_positive_int,
+        default=None,
+        help="samples per step (default: fitted to the training set's size, rows / 128 as a power of two, 32 to 256)",
+    )
     t.add_argument("--lr", type=finite_float, default=1e-3)
     t.add_argument("--seed", type=_seed, default=0)
     t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
@@ -268,10 +279,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         default=None,
         help="epochs of the augmented model; the original model gets as many optimizer steps "
-        "(default 10; built-in setup 30)",
+        "(default: fitted to the augmented set's size as gazeaug train fits them; the built-in setup "
+        "fits them for 100k samples instead of 250k)",
     )
     xp.add_argument(
-        "--batch-size", type=_positive_int, default=None, help="samples per step (default 256; built-in setup 32)"
+        "--batch-size",
+        type=_positive_int,
+        default=None,
+        help="samples per step, both models (default: fitted to the augmented set's size, as gazeaug train fits it)",
     )
     xp.add_argument("--lr", type=finite_float, default=1e-3)
     _add_train_input_options(xp)
@@ -702,8 +717,9 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         per_sample=args.per_sample,
         distribution=distribution,
         train=TrainSettings(
-            epochs=args.epochs or defaults.epochs,
-            batch_size=args.batch_size or defaults.batch_size,
+            epochs=args.epochs,
+            batch_size=args.batch_size,
+            auto_samples=defaults.auto_samples,
             lr=args.lr,
             seed=args.seed,
             **_train_input_settings(args),

@@ -12,7 +12,8 @@ every image), with the error reduction and its bootstrap interval.
 Same steps: the augmented set has ``per_sample`` times the rows of the
 original one, so the same epochs would give the original model that many
 times fewer optimizer steps. The augmented model trains ``train.epochs``
-epochs; the original model trains :func:`matched_epochs` epochs: the fewest
+epochs (by default fitted to its size, :meth:`gazeaug.train.TrainSettings.fitted`);
+the original model trains :func:`matched_epochs` epochs: the fewest
 whose steps (``epochs * ceil(rows / batch_size)``) reach the augmented
 run's.
 
@@ -84,10 +85,11 @@ __all__ = [
 #: errors mean anything (see the module docstring).
 MIN_STEPS_BATCHNORM = 200
 
-#: The training hyper-parameters of the built-in simulated setup: its sets are small (60 images
-#: per face), so a smaller batch and more epochs give the augmented model 240 optimizer steps
-#: (240 rows -> 8 steps per epoch, 30 epochs) and the original model as many.
-BUILTIN_TRAIN = TrainSettings(epochs=30, batch_size=32)
+#: The training hyper-parameters of the built-in simulated setup: the epochs and batch size fitted
+#: to the augmented set's size (:meth:`gazeaug.train.TrainSettings.fitted`) for 100k samples (the
+#: library's default is 250k: six runs of that would not fit the built-in run's half hour on two
+#: cores), the original model trained as many optimizer steps.
+BUILTIN_TRAIN = TrainSettings(auto_samples=100_000)
 
 #: The metrics of :func:`gazeaug.metrics.summarize` the report tabulates: key, title, unit, digits.
 METRICS: tuple[tuple[str, str, str, int], ...] = (
@@ -166,7 +168,10 @@ def _simulate_sets(
     n_train, n_test = sizes or ((400, 200) if large else (60, 60))
     setup = BuiltinSetup(out / "sim_train_screen", out / "sim_test_wheelchair", out / "sim_test_screen")
     kw: dict[str, Any] = {"progress": progress, "overwrite": True}
-    simulate(faces[:-1], BUILTIN_RIGS["screen"], setup.train, per_face=n_train, seed=seed, **kw)
+    # every training image its own simulated identity (shape, eyes, skin, glasses): one photo, many people
+    simulate(
+        faces[:-1], BUILTIN_RIGS["screen"], setup.train, per_face=n_train, identities_per_face=n_train, seed=seed, **kw
+    )
     simulate(faces[-1:], BUILTIN_RIGS["wheelchair"], setup.test, per_face=n_test, seed=seed + 1, **kw)
     if same_rig:  # the same seed: the same simulated person (the same kappa), in the training rig
         simulate(faces[-1:], BUILTIN_RIGS["screen"], setup.test_same_rig, per_face=n_test, seed=seed + 1, **kw)
@@ -278,7 +283,9 @@ class ExperimentSettings:
         distribution: the application's head-pose distribution.
         train: hyper-parameters, shared by both models; ``train.epochs`` are the augmented
             model's epochs (the original model's are matched in steps), ``train.seed`` is
-            replaced by each run's seed.
+            replaced by each run's seed. Epochs and batch size left at None are fitted to the
+            augmented set (:meth:`gazeaug.train.TrainSettings.fitted`) and the original model uses
+            the same batch size.
         workers: processes for the dataset runs.
         seed: the first seed; run ``i`` uses ``seed + i`` for the augmentation and the training.
         seeds: how many runs (default 3); every metric is reported as mean and standard
@@ -472,11 +479,12 @@ def run_experiment(
         if i == 0:  # the report's pictures of the augmented set: the first seed's
             _examples(aug_h5, out / "examples_augmented.png")
             shutil.copyfile(aug_h5.with_suffix(".distribution.png"), out / "train_augmented.distribution.png")
-        batch = s.train.batch_size
-        aug_steps = optimizer_steps(s.train.epochs, augmented["rows"], batch)
+        fitted = s.train.fitted(augmented["rows"])  # epochs and batch left to None: fitted to the augmented set
+        batch, aug_epochs = int(fitted.batch_size or 0), int(fitted.epochs or 0)
+        aug_steps = optimizer_steps(aug_epochs, augmented["rows"], batch)
         orig_epochs = matched_epochs(aug_steps, original["rows"], batch)
         plan = {
-            "augmented": (aug_h5, augmented, s.train.epochs),
+            "augmented": (aug_h5, augmented, aug_epochs),
             "original": (original_h5, original, orig_epochs),
         }
         run: dict[str, Any] = {"seed": seed}
@@ -485,7 +493,7 @@ def run_experiment(
             steps = optimizer_steps(epochs, summary["rows"], batch)
             if i == 0:
                 check_steps(name, steps, minimum)
-            ts = replace(s.train, epochs=epochs, seed=seed)
+            ts = replace(s.train, epochs=epochs, batch_size=batch, seed=seed)
             model_path = d / f"model_{name}.pt"
             train(h5, model_path, ts, progress=progress)
             model, meta = load_model(model_path)

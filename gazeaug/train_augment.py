@@ -20,9 +20,14 @@ gamma           ``255 (x / 255) ** g``, ``log g`` in                        0.25
 noise           Gaussian, standard deviation in ``[0, noise]`` grey        4
                 levels, one draw per pixel, the same on the three
                 channels (luminance noise: a third of the draws)
+mirror          with probability ``mirror`` per sample, both patches        0 (off)
+                mirrored left-right and swapped (the mirrored left eye
+                is a right eye), the yaw of the gaze and of the head
+                pose negated (:func:`facemesh.conventions.mirror_pitchyaw`);
+                drawn and applied first, by :func:`mirror_samples`
 ==============  =========================================================  ==============
 
-applied in this order, the values clipped to [0, 255] after the brightness and
+applied in this order (the mirror before the others), the values clipped to [0, 255] after the brightness and
 after the noise. The left and the right eye of a sample get **independent
 draws** (the model sees each eye through the shared backbone; a sample's eyes
 need not look alike). Nothing is drawn when :attr:`TrainAugment.enabled` is
@@ -57,7 +62,7 @@ from .errors import GazeAugError
 from .models import import_torch
 from .models.preprocess import eyes_to_float
 
-__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "translate_blur"]
+__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "mirror_samples", "translate_blur"]
 
 
 def _number(v: Any) -> bool:
@@ -81,6 +86,9 @@ class TrainAugment:
         brightness: largest offset, grey levels, in [0, 128] (default 20).
         gamma: gamma spread, in [0, 4]: exponents from 1 / (1 + gamma) to 1 + gamma (default 0.25).
         noise: largest standard deviation of the pixel noise, grey levels, in [0, 64] (default 4).
+        mirror: probability that a sample is mirrored left-right (eyes swapped, yaws negated), in
+            [0, 1] (default 0: off; on 1800 simulated images 0.5 read new people no better, 8.96 deg
+            against 8.6, one seed; docs/model.md).
 
     Raises:
         GazeAugError: a value of the wrong type or outside its range.
@@ -94,6 +102,7 @@ class TrainAugment:
     brightness: float = 20.0
     gamma: float = 0.25
     noise: float = 4.0
+    mirror: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
@@ -109,12 +118,16 @@ class TrainAugment:
             "brightness": (0.0, 128.0, True, " grey levels"),
             "gamma": (0.0, 4.0, True, ""),
             "noise": (0.0, 64.0, True, " grey levels"),
+            "mirror": (0.0, 1.0, True, ""),
         }
         for name, (lo, hi, closed, unit) in bounds.items():
             v = getattr(self, name)
             if not (_number(v) and lo <= v and (v <= hi if closed else v < hi)):
                 interval = f"[{lo:g}, {hi:g}{']' if closed else ')'}"
                 raise GazeAugError(f"{name}: expected a number in {interval}{unit}, got {v!r}")
+            object.__setattr__(self, name, float(v))  # plain numbers: model files record them
+        object.__setattr__(self, "shift_px", int(self.shift_px))
+        object.__setattr__(self, "enabled", bool(self.enabled))
 
 
 def augment_generator(seed: int, epoch: int, device: Any = "cpu") -> Any:
@@ -208,6 +221,45 @@ def translate_blur(
     x = fn.conv2d(x, wh.repeat_interleave(c, 0).view(n * c, 1, 1, -1), groups=n * c)
     x = fn.conv2d(x, wv.repeat_interleave(c, 0).view(n * c, 1, -1, 1), groups=n * c)
     return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
+
+
+def mirror_samples(eyes: Any, head_pose: Any, gaze: Any, augment: TrainAugment, generator: Any) -> tuple[Any, Any, Any]:
+    """Mirror a random share (``augment.mirror``) of a batch's samples left-right.
+
+    A mirrored sample's left patch is its right patch mirrored about the normalized camera's
+    principal point (column ``x`` from column ``w - x``,
+    :func:`facemesh.conventions.mirrored_columns`) and its right patch the left one
+    mirrored; its gaze and head pose have their yaw negated
+    (:data:`facemesh.conventions.MIRROR_PITCHYAW`). One draw per sample is always made
+    (also with ``mirror`` 0), so the strength changes no other draw; nothing is drawn
+    when ``augment.enabled`` is False.
+
+    Args:
+        eyes: uint8 torch tensor (2B, H, W, 3) RGB: the B left patches, then the B right ones.
+        head_pose: float32 torch tensor (B, 2), radians, (pitch, yaw), the face's normalized frame.
+        gaze: float32 torch tensor (B, 2), radians, (pitch, yaw), the face's normalized frame.
+        augment: the strengths.
+        generator: a ``torch.Generator`` on the tensors' device.
+
+    Returns:
+        (eyes, head_pose, gaze) of the same shapes, dtypes and device.
+    """
+    torch = import_torch()
+    b = gaze.shape[0]
+    if not augment.enabled or b == 0:
+        return eyes, head_pose, gaze
+    from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
+
+    flip = torch.rand(b, generator=generator, device=eyes.device) < augment.mirror
+    if augment.mirror == 0:  # decided on the host: no wait for the device
+        return eyes, head_pose, gaze
+    left, right = eyes[:b], eyes[b:]
+    cols = torch.as_tensor(mirrored_columns(eyes.shape[2]), device=eyes.device)
+    f4 = flip[:, None, None, None]
+    eyes = torch.cat([torch.where(f4, right[:, :, cols], left), torch.where(f4, left[:, :, cols], right)])
+    sign = torch.as_tensor(MIRROR_PITCHYAW, dtype=gaze.dtype, device=gaze.device)
+    factor = torch.where(flip[:, None], sign, torch.ones_like(sign))
+    return eyes, head_pose * factor, gaze * factor
 
 
 def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:

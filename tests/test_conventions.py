@@ -28,6 +28,29 @@ def test_vector_to_pitchyaw_hand_values():
     np.testing.assert_allclose(cv.vector_to_pitchyaw([1.0, 0.0, -1.0]), [0.0, -math.pi / 4], atol=1e-15)
 
 
+def test_mirror_keeps_pitch_and_negates_yaw():
+    # a gaze 30 deg up and 30 deg toward the image's left: (-C30 S30, -S30, -C30 C30) = (-0.433, -0.5, -0.75);
+    # in the mirrored image it points toward the image's right: (+0.433, -0.5, -0.75), i.e. (30, -30) deg
+    p, y = math.radians(30), math.radians(30)
+    np.testing.assert_allclose(cv.mirror_pitchyaw([p, y]), [p, -y], atol=1e-15)
+    expected = [C30 * S30, -S30, -C30 * C30]
+    np.testing.assert_allclose(cv.pitchyaw_to_vector(cv.mirror_pitchyaw([p, y])), expected, atol=1e-15)
+    rng = np.random.default_rng(1)
+    a = rng.uniform(-1.2, 1.2, size=(20, 2))
+    mirrored = cv.pitchyaw_to_vector(a) * [-1.0, 1.0, 1.0]  # the camera frame's x negated
+    np.testing.assert_allclose(cv.vector_to_pitchyaw(mirrored), cv.mirror_pitchyaw(a), atol=1e-12)
+    np.testing.assert_array_equal(cv.mirror_pitchyaw(cv.mirror_pitchyaw(a)), a)
+
+
+def test_mirrored_columns_reflect_about_the_principal_point():
+    # w = 4: principal point 2.0, pixel centres 0..3; x -> 4 - x: 1 -> 3, 2 -> 2, 3 -> 1; 0 -> 4 is outside: 3
+    np.testing.assert_array_equal(cv.mirrored_columns(4), [3, 3, 2, 1])
+    c = cv.mirrored_columns(60)
+    assert c[30] == 30 and c[1] == 59 and c[59] == 1
+    with pytest.raises(ValueError, match="width"):
+        cv.mirrored_columns(1)
+
+
 def test_pitchyaw_round_trip_batched():
     rng = np.random.default_rng(0)
     a = rng.uniform(-1.2, 1.2, size=(50, 2))

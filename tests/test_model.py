@@ -102,6 +102,42 @@ def test_bad_training_inputs(tmp_path):
         TrainSettings(epochs=0)
 
 
+def test_epochs_and_batch_fitted_to_the_data_size():
+    # hand-derived: batch = 2 ** round(log2(rows / 128)) within [32, 256]; epochs = max(10, ceil(250000 / rows))
+    cases = {
+        240: (32, 1042),  # 240 / 128 = 1.9 -> 2 -> 32 (the floor); 250000 / 240 = 1041.7 -> 1042
+        1440: (32, 174),  # 11.25 -> 8 -> 32; 173.6 -> 174
+        9000: (64, 28),  # 70.3 -> log2 6.14 -> 64; 27.8 -> 28
+        20000: (128, 13),  # 156.25 -> log2 7.29 -> 128; 12.5 -> 13
+        100000: (256, 10),  # 781 -> 256 (the ceiling); 2.5 -> 10 (the floor of epochs)
+    }
+    for rows, (batch, epochs) in cases.items():
+        f = TrainSettings().fitted(rows)
+        assert (f.batch_size, f.epochs) == (batch, epochs), rows
+    kept = TrainSettings(epochs=3, batch_size=7).fitted(240)
+    assert (kept.batch_size, kept.epochs) == (7, 3)
+    assert TrainSettings(batch_size=64).fitted(240).epochs == 1042
+    with pytest.raises(GazeAugError, match="rows"):
+        TrainSettings().fitted(0)
+    with pytest.raises(GazeAugError, match="batch size"):
+        TrainSettings(batch_size=True)
+
+
+def test_a_model_file_records_the_fitted_epochs_and_batch(tmp_path):
+    data = _synthetic_h5(tmp_path / "t.h5")
+    import h5py
+
+    with h5py.File(data) as f:
+        rows = len(f["gaze"])
+    # the batch size left to the data (the epochs given, for the test's time): a set under 5793 rows
+    # (rows / 128 < 2 ** 5.5) trains at the floor of 32, and the file records the fitted value
+    s = TrainSettings(epochs=1)
+    train(data, tmp_path / "m.pt", s, progress=False)
+    _, meta = load_model(tmp_path / "m.pt")
+    ts = meta["train_settings"]
+    assert ts["epochs"] == 1 and ts["batch_size"] == 32 and rows < 5793
+
+
 def test_one_reader_of_the_training_set_schema(tmp_path):
     import h5py
 

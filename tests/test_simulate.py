@@ -124,3 +124,5 @@ def test_builtin_experiment_setup(tmp_path):
     assert {s.subject for s in te}.isdisjoint({s.subject for s in tr}) or n_faces == 2
     truth = json.loads((test / "simulation.json").read_text())
     assert truth["rig"]["name"] == "wheelchair"
+    # every training image is its own simulated identity: 2 images of each training face, 2 subjects
+    assert len({s.subject for s in tr}) == len(tr)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,6 +33,7 @@ from gazeaug.train_augment import (  # noqa: E402
     TrainAugment,
     augment_eyes,
     augment_generator,
+    mirror_samples,
     translate_blur,
 )
 
@@ -138,6 +140,56 @@ def test_only_the_shift_moves_content_by_whole_pixels():
         assert float(img.max()) == 255.0 and int((img > 0).sum()) == 3  # moved, not altered
     shifts = {tuple(torch.nonzero(img[0] > 128).flatten().tolist()) for img in out}
     assert len(shifts) > 10  # drawn per sample
+
+
+def test_mirror_swaps_flips_and_negates_the_yaws():
+    eyes = _patches(8, seed=4)  # 4 samples: left patches 0-3, right patches 4-7
+    left, right = eyes[:4], eyes[4:]
+    head = torch.tensor([[0.1, 0.2], [-0.3, 0.4], [0.0, -0.5], [0.2, 0.0]])
+    gaze = torch.tensor([[-0.2, 0.3], [0.1, -0.1], [0.4, 0.6], [-0.1, -0.2]])
+    g = augment_generator(0, 0)
+    e2, h2, g2 = mirror_samples(eyes, head, gaze, TrainAugment(mirror=1.0), g)
+    # every sample mirrored: its new left patch is its right one read right to left, and the other way round
+    # about the principal point (w / 2 = 30, pixel centres at whole numbers): column x from column 60 - x,
+    # column 0 (no source) repeating column 59; the eye centre's column 30 stays column 30
+    cols = torch.tensor([59] + [60 - x for x in range(1, 60)])
+    for i in range(4):
+        assert torch.equal(e2[i], right[i][:, cols])
+        assert torch.equal(e2[4 + i], left[i][:, cols])
+        assert torch.equal(e2[i][:, 30], right[i][:, 30])
+    assert torch.equal(h2, head * torch.tensor([1.0, -1.0])) and torch.equal(g2, gaze * torch.tensor([1.0, -1.0]))
+    # mirror 0: nothing changes, though one draw per sample is made (the other draws stay where they were)
+    g0, g1 = augment_generator(0, 0), augment_generator(0, 0)
+    e0, h0, z0 = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.0), g0)
+    assert torch.equal(e0, eyes) and torch.equal(h0, head) and torch.equal(z0, gaze)
+    torch.rand(4, generator=g1)
+    assert torch.equal(torch.rand(3, generator=g0), torch.rand(3, generator=g1))
+    # augmentation off: nothing drawn
+    g3, g4 = augment_generator(0, 0), augment_generator(0, 0)
+    mirror_samples(eyes, head, gaze, TrainAugment(enabled=False), g3)
+    assert torch.equal(torch.rand(3, generator=g3), torch.rand(3, generator=g4))
+    # half of many samples, about
+    big = _patches(2000, seed=5)
+    yaws = torch.ones(1000, 2)
+    _, _, out = mirror_samples(big, yaws, yaws, TrainAugment(mirror=0.5), augment_generator(1, 0))
+    assert 400 < int((out[:, 1] < 0).sum()) < 600 and bool((out[:, 0] == 1).all())
+    with pytest.raises(GazeAugError, match="mirror"):
+        TrainAugment(mirror=1.5)
+    assert TrainAugment().mirror == 0.0  # off by default (it bought nothing measured; docs/model.md)
+
+
+def test_the_logged_training_error_is_against_the_labels_the_model_was_given(tmp_path):
+    # every gaze (0, +0.4) rad and every sample mirrored: the model is taught (0, -0.4), learns that
+    # constant within a few epochs, and the log must compare with what it was taught (a few degrees),
+    # not with the unmirrored labels (0.8 rad = 46 deg away)
+    import h5py
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=64)
+    with h5py.File(h5, "r+") as f:
+        f["gaze"][...] = np.tile(np.array([0.0, 0.4], np.float32), (64, 1))
+    s = TrainSettings(epochs=12, batch_size=16, lr=1e-2, augment=TrainAugment(mirror=1.0))
+    log = train(h5, tmp_path / "m.pt", s, progress=False)
+    assert log[-1]["train_error_deg"] < 15.0, log[-1]
 
 
 def test_settings_are_validated():
@@ -251,11 +303,24 @@ def test_training_is_reproducible_and_old_checkpoints_say_what_to_do(tmp_path):
     off = TrainSettings(epochs=1, batch_size=16, seed=3, augment=TrainAugment(enabled=False))
     train(h5, tmp_path / "o.pt", off, progress=False)
     ck = torch.load(tmp_path / "o.ckpt.pt", weights_only=True)
-    del ck["settings"]["augment"], ck["settings"]["input_mode"]
+    del ck["settings"]["augment"], ck["settings"]["input_mode"], ck["settings"]["auto_samples"]
     torch.save(ck, tmp_path / "o.ckpt.pt")
     with pytest.raises(GazeAugError, match="older gazeaug, without training-time augmentation.*--no-augment"):
         train(h5, tmp_path / "o.pt", s, resume=True, progress=False)
     assert len(train(h5, tmp_path / "o.pt", off, resume=True, progress=False)) == 1  # as it was trained: accepted
+    # a checkpoint of the gazeaug before the mirror and the fitted sizes: augment recorded without "mirror",
+    # no auto_samples; resumed with the sizes left to None, it keeps its own (epochs 1, batch 16)
+    train(h5, tmp_path / "p.pt", s, progress=False)
+    ck = torch.load(tmp_path / "p.ckpt.pt", weights_only=True)
+    del ck["settings"]["augment"]["mirror"], ck["settings"]["auto_samples"]
+    torch.save(ck, tmp_path / "p.ckpt.pt")
+    assert len(train(h5, tmp_path / "p.pt", TrainSettings(seed=3), resume=True, progress=False)) == 1
+    # numpy numbers become plain ones (the model file's safe loader refuses numpy scalars)
+    ns = TrainSettings(epochs=np.int64(1), batch_size=np.int64(16), auto_samples=np.int64(9), lr=np.float64(1e-3))
+    assert [type(v) for v in (ns.epochs, ns.batch_size, ns.auto_samples, ns.lr)] == [int, int, int, float]
+    assert type(TrainAugment(mirror=np.float64(0.5)).mirror) is float
+    train(h5, tmp_path / "n.pt", replace(ns, seed=3), progress=False)
+    load_model(tmp_path / "n.pt")
 
 
 def test_prefetch_keeps_the_order_and_passes_errors_on(tmp_path):
