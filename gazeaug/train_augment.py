@@ -87,8 +87,8 @@ class TrainAugment:
         gamma: gamma spread, in [0, 4]: exponents from 1 / (1 + gamma) to 1 + gamma (default 0.25).
         noise: largest standard deviation of the pixel noise, grey levels, in [0, 64] (default 4).
         mirror: probability that a sample is mirrored left-right (eyes swapped, yaws negated), in
-            [0, 1] (default 0: off; on 1800 simulated images 0.5 read new people no better, 8.96 deg
-            against 8.6, one seed; docs/model.md).
+            [0, 1] (default 0: off; on 1800 simulated images 0.5 read new people at 8.43 deg against
+            8.60 without, one seed: within noise; docs/model.md).
 
     Raises:
         GazeAugError: a value of the wrong type or outside its range.
