@@ -605,6 +605,11 @@ def train(
         raise GazeAugError(f"{out}: the model file must end in .pt")
     if val_path is not None and val_subjects:
         raise GazeAugError("give a validation set or validation subjects, not both")
+    if val_subjects is not None:
+        if isinstance(val_subjects, (str, bytes)):
+            raise GazeAugError(f"validation subjects: expected a list of names, got the string {val_subjects!r}")
+        # plain str (numpy strings would land in the files as numpy scalars, which the safe loader refuses)
+        val_subjects = [v.decode() if isinstance(v, bytes) else str(v) for v in val_subjects]
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
         return _train(train_path, out, s, val_path, val_subjects, resume, progress)
 

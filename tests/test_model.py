@@ -123,6 +123,17 @@ def test_epochs_and_batch_fitted_to_the_data_size():
         TrainSettings(batch_size=True)
 
 
+def test_numpy_subject_names_give_a_loadable_model(tmp_path):
+    # names read from an HDF5 file or a numpy array are numpy strings; the model file must still load
+    data = _synthetic_h5(tmp_path / "t.h5")
+    held = np.array(["b"])
+    train(data, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=32), val_subjects=list(held), progress=False)
+    _, meta = load_model(tmp_path / "m.pt")
+    assert meta["val_subjects"] == ["b"] and type(meta["val_subjects"][0]) is str
+    with pytest.raises(GazeAugError, match="list of names"):
+        train(data, tmp_path / "n.pt", TrainSettings(epochs=1), val_subjects="b", progress=False)
+
+
 def test_a_model_file_records_the_fitted_epochs_and_batch(tmp_path):
     data = _synthetic_h5(tmp_path / "t.h5")
     import h5py
