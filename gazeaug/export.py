@@ -5,11 +5,18 @@ Inputs are the *prepared* tensors of :func:`gazeaug.models.preprocess.prepare_in
 dimension is dynamic. Uses PyTorch's TorchScript-based exporter, which needs
 the ``onnx`` package (``pip install 'gazeaug[train]'``; below 1.18, as
 mediapipe 0.10.21 needs protobuf < 5).
+
+The file's ``metadata_props`` say how to feed it (strings; JSON where structured):
+``gazeaug.input_mode`` (``rgb`` or ``grey_equalized``: pass it to ``prepare_inputs``),
+``gazeaug.normalization`` (the normalized camera the training data used, as
+:meth:`NormalizationSettings.as_dict` writes it), ``gazeaug.patch_size_wh`` and
+``gazeaug.output`` (what ``gaze`` holds).
 """
 
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +40,7 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
 
     torch = import_torch()
     try:
-        import onnx  # noqa: F401, PLC0415
+        import onnx  # noqa: PLC0415
     except ImportError as exc:
         raise ImportError(f"ONNX export needs the onnx package: pip install 'onnx<1.18' ({exc})") from exc
     out = Path(output)
@@ -61,6 +68,17 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
             opset_version=opset,
             dynamo=False,
         )
+    proto = onnx.load_from_string(buf.getvalue())
+    norm = meta.get("normalization")
+    props = {
+        "gazeaug.input_mode": str(meta.get("input_mode", "rgb")),
+        "gazeaug.normalization": json.dumps(norm if isinstance(norm, dict) else NormalizationSettings().as_dict()),
+        "gazeaug.patch_size_wh": json.dumps([w, h]),
+        "gazeaug.output": "gaze (N, 2) float32: (pitch, yaw) radians in the face-centre normalized frame",
+    }
+    for key, value in props.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
     with atomic_write(out) as fh:
-        fh.write(buf.getvalue())
+        fh.write(proto.SerializeToString())
     return out

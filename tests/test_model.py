@@ -223,6 +223,16 @@ def test_onnx_export_matches_pytorch(tmp_path):
     sess = ort.InferenceSession(str(tmp_path / "m.onnx"))
     got = sess.run(None, {"left_eye": a.numpy(), "right_eye": b.numpy(), "head_pose": c.numpy()})[0]
     np.testing.assert_allclose(got, expected, atol=1e-4)
+    # the file says how to feed it: the input mode and the normalization the model was trained for
+    import onnx
+
+    props = {p.key: p.value for p in onnx.load(str(tmp_path / "m.onnx")).metadata_props}
+    assert props["gazeaug.input_mode"] == "rgb" and json.loads(props["gazeaug.patch_size_wh"]) == [60, 36]
+    assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
+    train(data, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=16, input_mode="grey_equalized"), progress=False)
+    assert main(["export", str(tmp_path / "g.pt"), "-o", str(tmp_path / "g.onnx")]) == 0
+    props = {p.key: p.value for p in onnx.load(str(tmp_path / "g.onnx")).metadata_props}
+    assert props["gazeaug.input_mode"] == "grey_equalized"
 
 
 def _copy_photo(faces_dir, name, root):
