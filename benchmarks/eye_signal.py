@@ -37,6 +37,16 @@ PITCHES = (-30, -20, -10, 0, 10)
 YAWS = (-20, -10, 0, 10, 20)
 
 
+def dominant(img: np.ndarray, channel: int) -> np.ndarray:
+    """(H, W) bool: the pixels of an RGB patch whose ``channel`` exceeds both others by over 60 grey levels.
+
+    Channel 2 (blue) finds the painted iris; channel 1 (green) the painted sclera.
+    """
+    p = img.astype(np.float64)
+    others = np.delete(p, channel, axis=-1)
+    return np.asarray((p[..., channel] - others.max(axis=-1)) > 60)
+
+
 def clean_setup() -> tuple[Any, np.ndarray, Any]:
     """Simulator settings without relighting, blur, noise, JPEG loss, brightness change or kappa, and the camera.
 
@@ -107,8 +117,7 @@ def main() -> None:
                 n = normalize_image(frame.image, cam, fit.pose, pts, kp, gaze_target_mm=target, settings=norm)
                 for side in ("left", "right"):
                     eye = n.eye(side)
-                    p = eye.image.astype(np.float64)
-                    blue = (p[..., 2] - np.maximum(p[..., 0], p[..., 1])) > 60
+                    blue = dominant(eye.image, 2)
                     ys, xs = np.nonzero(blue)
                     if len(xs) > 8 and eye.gaze is not None:
                         gp, gy = np.degrees(eye.gaze)

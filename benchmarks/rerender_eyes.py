@@ -35,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from eye_signal import clean_setup  # noqa: E402  (benchmarks/eye_signal.py)
+from eye_signal import clean_setup, dominant  # noqa: E402  (benchmarks/eye_signal.py)
 
 GAZES_DEG = ((-10, 0), (-10, 10), (0, -10))  # (pitch, yaw) in the head frame
 TURNS_DEG = (0, 15, 30)
@@ -49,9 +49,8 @@ def iris_position(img: np.ndarray) -> tuple[float, float, float, float, int] | N
     degree of camera rotation moves a whole patch by about a pixel). None when under 9 iris
     pixels show.
     """
-    p = img.astype(np.float64)
-    iris = (p[..., 2] - np.maximum(p[..., 0], p[..., 1])) > 60
-    opening = iris | ((p[..., 1] - np.maximum(p[..., 0], p[..., 2])) > 60)
+    iris = dominant(img, 2)
+    opening = iris | dominant(img, 1)
     ys, xs = np.nonzero(iris)
     oy, ox = np.nonzero(opening)
     if len(xs) <= 8:

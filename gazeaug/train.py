@@ -540,21 +540,13 @@ def _data_selection(
     }
 
 
-def _resumed_sizes(s: TrainSettings, ckpt_path: Path) -> TrainSettings:
-    """``s`` with the epochs and batch size it leaves to None taken from the checkpoint being resumed.
+def _resumed_sizes(s: TrainSettings, then: dict[str, Any]) -> TrainSettings:
+    """``s`` with the epochs and batch size it leaves to None taken from ``then``, a checkpoint's settings.
 
     A run left to :meth:`TrainSettings.fitted` resumes with what it was fitted to (and a checkpoint of
-    an older gazeaug, whose defaults were 10 epochs at batch 256, with those); without a readable
-    checkpoint ``s`` is returned as it is (the resume then fails with the checkpoint's own message).
+    an older gazeaug, whose defaults were 10 epochs at batch 256, with those); values ``then`` lacks
+    stay None (the settings check then names the difference).
     """
-    if not ckpt_path.is_file():
-        return s
-    try:
-        then = _load_plain(ckpt_path, "gazeaug checkpoint").get("settings")
-    except GazeAugError:
-        return s
-    if not isinstance(then, dict):
-        return s
 
     def taken(mine: int | None, theirs: Any) -> int | None:
         if mine is not None or not (_is_integer(theirs) and theirs >= 1):
@@ -626,8 +618,13 @@ def _train(
     torch = import_torch()
     ckpt_path = out.with_suffix(".ckpt.pt")
     data = H5TrainingSet(train_path, exclude_subjects=val_subjects or None)
-    if resume and (s.epochs is None or s.batch_size is None):
-        s = _resumed_sizes(s, ckpt_path)  # left to None: the run being resumed decided them
+    ck: dict[str, Any] = {}
+    if resume:  # read once: its settings decide the sizes left to None, the rest is checked below
+        if not ckpt_path.is_file():
+            raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
+        ck = _load_plain(ckpt_path, "gazeaug checkpoint")
+        if isinstance(ck.get("settings"), dict):
+            s = _resumed_sizes(s, ck["settings"])  # left to None: the run being resumed decided them
     s = s.fitted(len(data))  # epochs and batch size left to the data size: fixed now, recorded in the files
     n_epochs, batch_size = int(s.epochs or 0), int(s.batch_size or 0)
     # recorded in the model and used by predict and evaluate: checked now, not after the training
@@ -649,9 +646,6 @@ def _train(
     start_epoch = 0
     selection = _data_selection(train_path, val_path, val_subjects, data, val)
     if resume:
-        if not ckpt_path.is_file():
-            raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
-        ck = _load_plain(ckpt_path, "gazeaug checkpoint")
         missing = [k for k in _CKPT_KEYS if k not in ck]
         if missing == ["data_selection"]:
             raise GazeAugError(
