@@ -187,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         default=None,
         help="passes over the training set (default: fitted to its size, enough to show the model "
-        "250k samples, at least 10)",
+        "250k samples, at least 10, at most 2000)",
     )
     t.add_argument(
         "--batch-size",

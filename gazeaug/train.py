@@ -75,6 +75,10 @@ _LEGACY_SETTINGS: dict[str, Any] = {
 _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0}
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.
 AUTO_MIN_EPOCHS = 10
+#: The most epochs :meth:`TrainSettings.fitted` gives: a set of under 125 rows (250k / 2000) would
+#: otherwise train for many thousands of one-step epochs, each writing a checkpoint that holds the
+#: whole log (24 rows: 10417 epochs, 8.9 min on 2 cores), to memorise a set too small to generalize.
+AUTO_MAX_EPOCHS = 2000
 #: Batches read ahead by the background thread.
 PREFETCH = 3
 
@@ -88,7 +92,7 @@ class TrainSettings:
         model_options: keyword options of the model factory.
         epochs: passes over the training set (default None: fitted to the data size by
             :meth:`fitted`, enough epochs to show the model ``auto_samples`` samples, at least
-            :data:`AUTO_MIN_EPOCHS`).
+            :data:`AUTO_MIN_EPOCHS`, at most :data:`AUTO_MAX_EPOCHS`).
         batch_size: samples per step (default None: fitted to the data size by :meth:`fitted`,
             about ``rows / 128`` rounded to a power of two, from 32 to 256).
         auto_samples: how many samples a run with ``epochs`` None shows the model (default 250000:
@@ -156,7 +160,8 @@ class TrainSettings:
         left 10.3 deg of training error and 12.0 deg on new people, 150 epochs 5.9 and 8.6).
         The batch is about ``rows / 128`` as a power of two, from 32 to 256 (small sets take
         small batches, so many optimizer steps); the epochs are enough to show the model
-        ``auto_samples`` samples, at least :data:`AUTO_MIN_EPOCHS`. Values already set are kept.
+        ``auto_samples`` samples, at least :data:`AUTO_MIN_EPOCHS` and at most :data:`AUTO_MAX_EPOCHS`.
+        Values already set are kept.
         """
         if not (_is_integer(rows) and rows >= 1):
             raise GazeAugError(f"rows: expected an integer >= 1, got {rows!r}")
@@ -165,7 +170,7 @@ class TrainSettings:
             batch = int(min(256, max(32, 2 ** round(math.log2(rows / 128)))))
         epochs = self.epochs
         if epochs is None:
-            epochs = max(AUTO_MIN_EPOCHS, math.ceil(self.auto_samples / rows))
+            epochs = min(AUTO_MAX_EPOCHS, max(AUTO_MIN_EPOCHS, math.ceil(self.auto_samples / rows)))
         return replace(self, epochs=int(epochs), batch_size=int(batch))
 
 
