@@ -29,6 +29,15 @@ Texture coordinates (``uv``)
     W x H texture sits at ((i + 0.5) / W, (j + 0.5) / H). Open3D and trimesh
     use the other common convention (origin at the bottom-left corner, v up):
     :func:`gltf_uv_to_bottom_left_uv` converts.
+Rig frame (``rig``), gazeaug's applications (:class:`gazeaug.sampling.Rig`)
+    The head frame of the user sitting still and looking straight ahead:
+    origin between the eyes, x toward the user's left, y down, z from the
+    face back into the head (the space in front of the face has negative z).
+    Millimetres. A rig's camera sits at ``c`` (rig frame) with the rotation
+    ``R`` (rig -> camera, rows the camera's axes in the rig frame), so a
+    point is ``p_cam = R (p_rig - c)`` and ``p_rig = R^T p_cam + c``
+    (:func:`camera_to_rig_points`, :func:`rig_to_camera_points`); a
+    direction is ``R^T v`` (:func:`camera_to_rig_directions`).
 OpenGL (``opengl``): Filament's and pyrender's cameras
     A camera's axes are glTF's (x right, y up, looking down -z; the same
     ``diag(1, -1, -1)`` from OpenCV's, :func:`opencv_to_opengl_camera_pose`),
@@ -73,6 +82,9 @@ __all__ = [
     "opencv_to_opengl_pixels",
     "opencv_to_opengl_camera_pose",
     "look_at_rotation",
+    "camera_to_rig_points",
+    "camera_to_rig_directions",
+    "rig_to_camera_points",
     "pitchyaw_to_vector",
     "vector_to_pitchyaw",
     "MIRROR_PITCHYAW",
@@ -550,6 +562,68 @@ def look_at_rotation(
     second = second / np.sqrt(np.sum(second * second, axis=-1, keepdims=True))
     x, y = (second, first) if right is not None else (first, second)
     return np.stack([x, y, z], axis=-2)
+
+
+def _rig_pose(
+    rotation_rig_to_camera: ArrayLike, camera_position_rig_mm: ArrayLike | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    r = np.asarray(rotation_rig_to_camera, dtype=np.float64)
+    if r.shape != (3, 3):
+        raise ValueError(f"rotation_rig_to_camera: expected a (3, 3) rotation, got shape {r.shape}")
+    c = np.zeros(3) if camera_position_rig_mm is None else np.asarray(camera_position_rig_mm, dtype=np.float64)
+    if c.shape != (3,):
+        raise ValueError(f"camera_position_rig_mm: expected (3,) mm, got shape {c.shape}")
+    return r, c
+
+
+def camera_to_rig_points(
+    points_camera_mm: ArrayLike, rotation_rig_to_camera: ArrayLike, camera_position_rig_mm: ArrayLike
+) -> NDArray[np.float64]:
+    """Points from a rig's camera frame (OpenCV, mm) into the rig frame (mm).
+
+    Convention: ``p_rig = R^T p_cam + c``, with ``R`` the rig -> camera
+    rotation (rows: the camera's x, y, z axes in the rig frame, as
+    :func:`look_at_rotation` builds it) and ``c`` the camera centre in the
+    rig frame. The camera centre ``(0, 0, 0)`` maps to ``c``.
+
+    Args:
+        points_camera_mm: (..., 3) float, OpenCV camera frame, mm.
+        rotation_rig_to_camera: (3, 3) float.
+        camera_position_rig_mm: (3,) float, rig frame, mm.
+
+    Returns:
+        (..., 3) float64, rig frame, mm.
+    """
+    p = _as_points(points_camera_mm, 3, "points_camera_mm")
+    r, c = _rig_pose(rotation_rig_to_camera, camera_position_rig_mm)
+    return p @ r + c
+
+
+def rig_to_camera_points(
+    points_rig_mm: ArrayLike, rotation_rig_to_camera: ArrayLike, camera_position_rig_mm: ArrayLike
+) -> NDArray[np.float64]:
+    """Points from the rig frame (mm) into the rig's camera frame (OpenCV, mm): ``p_cam = R (p_rig - c)``.
+
+    The inverse of :func:`camera_to_rig_points` (same arguments, same shapes).
+    """
+    p = _as_points(points_rig_mm, 3, "points_rig_mm")
+    r, c = _rig_pose(rotation_rig_to_camera, camera_position_rig_mm)
+    return (p - c) @ r.T
+
+
+def camera_to_rig_directions(vectors_camera: ArrayLike, rotation_rig_to_camera: ArrayLike) -> NDArray[np.float64]:
+    """Directions (gaze vectors) from a rig's camera frame into the rig frame: ``v_rig = R^T v_cam``.
+
+    Args:
+        vectors_camera: (..., 3) float, OpenCV camera frame; any length (kept).
+        rotation_rig_to_camera: (3, 3) float, as in :func:`camera_to_rig_points`.
+
+    Returns:
+        (..., 3) float64, rig frame.
+    """
+    v = _as_points(vectors_camera, 3, "vectors_camera")
+    r, _ = _rig_pose(rotation_rig_to_camera, None)
+    return v @ r
 
 
 def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:

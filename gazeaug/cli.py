@@ -217,6 +217,41 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--camera", type=Path, help="calibration file (default: a documented default camera)")
     pr.add_argument("-o", "--output", type=Path, default=None, help="picture with the gaze arrow (.png/.jpg)")
 
+    tk = sub.add_parser(
+        "track",
+        help="gaze per frame of a video, image folder or camera; with a rig, the point of gaze and dwell selections",
+        description="Writes OUT/gaze.csv (one row per frame), OUT/overlay.mp4, OUT/summary.json, and with --rig "
+        "OUT/selections.csv; prints one JSON line at the end. See docs/tracking.md.",
+    )
+    tk.add_argument("source", help="a video file, a folder of images (name order), or a camera (0, /dev/video0)")
+    tk.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    tk.add_argument(
+        "--model", type=Path, required=True, help="a gaze model: .pt (gazeaug train) or .onnx (gazeaug export)"
+    )
+    tk.add_argument(
+        "--camera",
+        type=Path,
+        help="the source's calibration file (default: the rig's camera when the frame size is the rig's, "
+        "else a documented default camera)",
+    )
+    tk.add_argument(
+        "--rig", help="a rig (built-in name or RIG.yaml) with targets and planes: point of gaze and selection"
+    )
+    tk.add_argument("--max-frames", type=_positive_int, default=None, help="stop after N frames")
+    tk.add_argument(
+        "--fps",
+        type=finite_float,
+        default=None,
+        help="frame rate of a folder of images (default: its sequence.json, else 30)",
+    )
+    tk.add_argument("--dwell", type=finite_float, default=0.6, help="seconds on a target to select it (default 0.6)")
+    tk.add_argument("--margin", type=finite_float, default=5.0, help="angular margin of a target, deg (default 5)")
+    tk.add_argument("--no-smoothing", action="store_true", help="no One-Euro smoothing of the gaze")
+    tk.add_argument("--static", action="store_true", help="detect the face afresh in every frame (no tracking)")
+    tk.add_argument("--no-video", action="store_true", help="do not write overlay.mp4")
+    tk.add_argument("--show", action="store_true", help="show the overlay in a window (needs a display; q quits)")
+    tk.add_argument("--quiet", action="store_true", help="no progress bar")
+
     ex = sub.add_parser("export", help="export a model to ONNX")
     ex.add_argument("model", type=Path)
     ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
@@ -651,6 +686,33 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_track(args: argparse.Namespace) -> int:
+    from facemesh.camera import load_camera
+
+    from .estimator import load_estimator
+    from .sampling import load_rig
+    from .selection import SelectionSettings, SmoothingSettings
+    from .track import TrackSettings, track
+
+    settings = TrackSettings(
+        smoothing=None if args.no_smoothing else SmoothingSettings(),
+        selection=SelectionSettings(dwell_s=args.dwell, margin_deg=args.margin),
+        tracking=not args.static,
+        max_frames=args.max_frames,
+        folder_fps=args.fps,
+        video=not args.no_video,
+        show=args.show,
+    )
+    rig = load_rig(args.rig) if args.rig is not None else None
+    camera = load_camera(args.camera) if args.camera is not None else None
+    estimator = load_estimator(args.model)
+    summary = track(
+        args.source, args.output, estimator, camera=camera, rig=rig, settings=settings, progress=not args.quiet
+    )
+    print(json.dumps(summary))
+    return 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from .export import export_onnx
     from .train import load_model
@@ -764,6 +826,7 @@ _COMMANDS = {
     "evaluate": _cmd_evaluate,
     "predict": _cmd_predict,
     "export": _cmd_export,
+    "track": _cmd_track,
     "augment": _cmd_dataset,
     "normalize-dataset": _cmd_dataset,
     "normalize": _cmd_normalize,
@@ -799,6 +862,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_picture_path(out)
     elif cmd in ("evaluate", "experiment"):
         check_output_folder(out, what="report folder")
+    elif cmd == "track":
+        check_output_folder(out, what="output folder")
     elif cmd == "simulate":
         check_output_folder(out, what="dataset folder")
 
@@ -818,6 +883,8 @@ def _interrupted(args: argparse.Namespace) -> str:
         ckpt = Path(out).with_suffix(".ckpt.pt")
         if ckpt.exists():
             return f"kept {ckpt} (the last finished epoch); run the same command with --resume to continue"
+    if args.command == "track" and out is not None:
+        return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"
     return "nothing was written (outputs are written whole or not at all)"

@@ -26,8 +26,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from facemesh.conventions import look_at_rotation, rotation_from_yaw_pitch, yaw_pitch_from_rotation
+from facemesh.types import CameraIntrinsics
 
 from .errors import GazeAugError
+from .scene import Plane, Scene, Target, plane_from_dict, target_from_dict
 
 __all__ = ["HeadPoseDistribution", "Rig", "load_rig", "BUILTIN_RIGS"]
 
@@ -130,8 +132,13 @@ class Rig:
         target_box_mm: ((x0, y0, z0), (x1, y1, z1)) corners of the box, rig frame, where the
             targets the user looks at lie (drawn uniformly).
         head_position_std_mm: spread of the head's position around the rig frame's origin.
+        targets: what the user selects by looking at it (:mod:`gazeaug.scene`: spheres and boxes,
+            rig frame, mm); optional in a rig file (default none).
+        planes: surfaces that give a point of gaze (a table, a screen; :class:`gazeaug.scene.Plane`);
+            optional in a rig file (default none).
 
-    A rig file (:func:`load_rig`) gives every field but ``name``; the defaults here serve code only.
+    A rig file (:func:`load_rig`) gives every field but ``name``, ``targets`` and ``planes``; the
+    defaults here serve code only.
     """
 
     name: str = "custom"
@@ -147,6 +154,8 @@ class Rig:
         (250.0, 300.0, -600.0),
     )
     head_position_std_mm: float = 15.0
+    targets: tuple[Target, ...] = ()
+    planes: tuple[Plane, ...] = ()
 
     #: Allowed image width and height, pixels (a simulated image is held whole in memory, with its depth
     #: and several layers: 8192 x 8192 is already a few GB).
@@ -192,6 +201,28 @@ class Rig:
         if box[1, 2] >= 0:
             raise GazeAugError(f"rig {self.name!r}: targets must lie in front of the face (z < 0)")
         object.__setattr__(self, "target_box_mm", (tuple(float(v) for v in box[0]), tuple(float(v) for v in box[1])))
+        object.__setattr__(self, "targets", tuple(self.targets))
+        object.__setattr__(self, "planes", tuple(self.planes))
+        try:
+            Scene(self.targets, self.planes)  # checks the types' invariants: unique names
+        except GazeAugError as exc:
+            raise GazeAugError(f"rig {self.name!r}: {exc}") from exc
+
+    def camera(self) -> CameraIntrinsics:
+        """The rig camera's intrinsics.
+
+        ``focal_px``, the principal point at the centre of an ``image_size_wh`` image
+        (``((w - 1) / 2, (h - 1) / 2)``, pixel centres at integers), no distortion.
+        """
+        w, h = self.image_size_wh
+        f = self.focal_px
+        k = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return CameraIntrinsics(matrix=k, distortion=np.zeros(5), image_size=(w, h), source=f"rig:{self.name}")
+
+    @property
+    def scene(self) -> Scene:
+        """The rig's targets and planes (rig frame, mm)."""
+        return Scene(self.targets, self.planes)
 
     def head_poses(self, n: int, rng: np.random.Generator | int | None = None) -> NDArray[np.float64]:
         """Head poses as this camera sees them: (n, 2) float64 radians, the (yaw, pitch) of ``R(y, p)``.
@@ -238,6 +269,8 @@ class Rig:
             "focal_px": self.focal_px,
             "target_box_mm": [list(c) for c in self.target_box_mm],
             "head_position_std_mm": self.head_position_std_mm,
+            **({"targets": [t.as_dict() for t in self.targets]} if self.targets else {}),
+            **({"planes": [p.as_dict() for p in self.planes]} if self.planes else {}),
         }
 
 
@@ -302,18 +335,30 @@ def load_rig(spec: str | Path) -> Rig:
         raise GazeAugError(f"{p}: not valid {p.suffix.lstrip('.').upper() or 'YAML'} ({exc})") from exc
     if not isinstance(data, dict):
         raise GazeAugError(f"{p}: expected a mapping of rig fields, got {type(data).__name__}")
+    lines = _yaml_lines(text) if p.suffix.lower() != ".json" else {}
+
+    def at(key: Any) -> str:
+        return f"{p}, line {lines[key]}" if key in lines else str(p)
+
     fields = [f.name for f in dataclasses.fields(Rig)]  # ClassVar bounds are no fields
     known = set(fields)
     unknown = sorted(str(k) for k in set(data) - known)
     if unknown:
-        raise GazeAugError(f"{p}: unknown rig fields {unknown} (known: {sorted(known)})")
-    missing = [k for k in fields if k != "name" and k not in data]
+        raise GazeAugError(f"{at(unknown[0])}: unknown rig fields {unknown} (known: {sorted(known)})")
+    missing = [k for k in fields if k not in _OPTIONAL_FIELDS and k not in data]
     if missing:  # a default would silently stand in for what the file meant to say (a truncated file)
         raise GazeAugError(
-            f"{p}: a rig file must give every field but 'name'; missing {missing} "
+            f"{p}: a rig file must give every field but {', '.join(_OPTIONAL_FIELDS)}; missing {missing} "
             f"(see data_samples/rigs/ for complete files)"
         )
     data.setdefault("name", p.stem)
+    for key, parse in (("targets", target_from_dict), ("planes", plane_from_dict)):
+        items = data.get(key, [])
+        if items is None:
+            items = []
+        if not isinstance(items, list):
+            raise GazeAugError(f"{at(key)}: {key}: expected a list, got {type(items).__name__}")
+        data[key] = tuple(parse(item, at((key, i))) for i, item in enumerate(items))
     try:
         for k in ("camera_position_mm", "image_size_wh"):
             if isinstance(data.get(k), list):
@@ -322,9 +367,33 @@ def load_rig(spec: str | Path) -> Rig:
             data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
         return Rig(**data)
     except GazeAugError as exc:
-        raise GazeAugError(f"{p}: {exc}") from exc
+        named = [k for k in fields if f"{k}:" in str(exc) or f"{k} " in str(exc)]
+        raise GazeAugError(f"{at(named[0]) if named else p}: {exc}") from exc
     except (TypeError, ValueError, OverflowError) as exc:  # a field of the wrong type or size
         raise GazeAugError(f"{p}: bad rig field value ({exc.__class__.__name__}: {exc})") from exc
+
+
+#: Rig fields a rig file may leave out: the name (the file's stem), and the scene (none).
+_OPTIONAL_FIELDS = ("name", "targets", "planes")
+
+
+def _yaml_lines(text: str) -> dict[Any, int]:
+    """1-based line numbers of a YAML mapping's top-level keys (``key``) and list items (``(key, i)``)."""
+    import yaml
+
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return {}
+    out: dict[Any, int] = {}
+    if isinstance(root, yaml.MappingNode):
+        for k, v in root.value:
+            key = k.value
+            out[key] = k.start_mark.line + 1
+            if isinstance(v, yaml.SequenceNode):
+                for i, item in enumerate(v.value):
+                    out[(key, i)] = item.start_mark.line + 1
+    return out
 
 
 def sampled_rotations(yaw_pitch_rad: ArrayLike) -> NDArray[np.float64]:

@@ -783,7 +783,7 @@ def _simulate_into(
     s = settings
     detector = default_landmark_model()
     w, h = rig.image_size_wh
-    k = np.array([[rig.focal_px, 0.0, (w - 1) / 2.0], [0.0, rig.focal_px, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+    k = np.array(rig.camera().matrix)
     rows, truth = [], []
     bar = None
     if progress:

@@ -247,3 +247,29 @@ def test_look_at_rotation_batches_and_refuses_degenerate_hints():
         cv.look_at_rotation([0.0, 0.0, 1.0])
     with pytest.raises(ValueError):
         cv.look_at_rotation([0.0, 0.0, 0.0], down=[0.0, 1.0, 0.0])
+
+
+def test_camera_rig_frames_hand_values():
+    # The wheelchair rig: the camera 460 mm from the eyes, 30 deg below their line of sight,
+    # c = (0, 460 sin 30, -460 cos 30) = (0, 230, -398.37) (rig frame: y down, in front z < 0),
+    # looking at the eyes: its z axis (0, -230, 398.37) / 460 = (0, -1/2, sqrt3/2), x level = (1, 0, 0),
+    # y = z x x = (0, sqrt3/2, 1/2).
+    s3 = math.sqrt(3) / 2
+    c = np.array([0.0, 230.0, -460 * s3])
+    r = np.array([[1.0, 0.0, 0.0], [0.0, s3, 0.5], [0.0, -0.5, s3]])
+    np.testing.assert_allclose(cv.look_at_rotation(-c, right=[1.0, 0.0, 0.0]), r, atol=1e-12)
+    # the eyes are 460 mm straight ahead of the camera; the camera centre is c
+    np.testing.assert_allclose(cv.camera_to_rig_points([0.0, 0.0, 460.0], r, c), [0.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(cv.camera_to_rig_points([0.0, 0.0, 0.0], r, c), c, atol=1e-12)
+    # 100 mm along the camera's x (the image's right, the user's left as the camera faces them): rig +x
+    np.testing.assert_allclose(cv.camera_to_rig_points([100.0, 0.0, 0.0], r, c), c + [100.0, 0.0, 0.0], atol=1e-9)
+    # the camera's optical axis in the rig: up (y < 0) and back toward the user (z > 0)
+    np.testing.assert_allclose(cv.camera_to_rig_directions([0.0, 0.0, 1.0], r), [0.0, -0.5, s3], atol=1e-12)
+    # a user looking straight ahead (rig (0, 0, -1)) looks, for the camera, away and up in its image:
+    # R (0, 0, -1) = (0, -1/2, -sqrt3/2)
+    np.testing.assert_allclose(cv.camera_to_rig_directions([0.0, -0.5, -s3], r), [0.0, 0.0, -1.0], atol=1e-12)
+    # round trips, batched
+    pts = np.array([[1.0, 2.0, 3.0], [-40.0, 5.0, 600.0]])
+    np.testing.assert_allclose(cv.rig_to_camera_points(cv.camera_to_rig_points(pts, r, c), r, c), pts, atol=1e-9)
+    with pytest.raises(ValueError, match="rotation_rig_to_camera"):
+        cv.camera_to_rig_points(pts, np.eye(2), c)

@@ -66,13 +66,18 @@ def import_mediapipe_face_mesh() -> Any:
 
 
 class MediaPipeFaceMesh:
-    """MediaPipe Face Mesh in static-image mode.
+    """MediaPipe Face Mesh, in static-image mode (default) or video mode.
 
     Args:
         refine_landmarks: add the 10 iris landmarks (478 in all).
         max_num_faces: most faces to return per image.
         min_detection_confidence: MediaPipe's face detector threshold.
         quiet: silence MediaPipe's native log lines (module docstring).
+        static_image_mode: True: every image is detected afresh. False (video mode, for the
+            frames of one video in order): the face found in one frame is tracked into the next,
+            the detector runs only when the track is lost (below ``min_tracking_confidence``),
+            which is cheaper per frame.
+        min_tracking_confidence: video mode's threshold for keeping the track.
 
     The graph is loaded on first use and kept; call :meth:`close` (or use a
     ``with`` block) to free it.
@@ -86,25 +91,32 @@ class MediaPipeFaceMesh:
         max_num_faces: int = 5,
         min_detection_confidence: float = 0.5,
         quiet: bool = True,
+        static_image_mode: bool = True,
+        min_tracking_confidence: float = 0.5,
     ):
+        self.static_image_mode = bool(static_image_mode)
+        self.min_tracking_confidence = min_tracking_confidence
         self.refine_landmarks = refine_landmarks
         self.max_num_faces = max_num_faces
         self.min_detection_confidence = min_detection_confidence
         self.quiet = quiet
         self._graph: Any = None
         self._warm = False  # has the graph processed an image (its delegates created, their logs printed)?
+        self._face_seen = False  # video mode: the last cold run found a face (the next one starts tracking)
 
     def _get_graph(self) -> Any:
         if self._graph is None:
             with native_stderr_silenced(self.quiet):
                 fm = import_mediapipe_face_mesh()
                 self._graph = fm.FaceMesh(
-                    static_image_mode=True,
+                    static_image_mode=self.static_image_mode,
                     refine_landmarks=self.refine_landmarks,
                     max_num_faces=self.max_num_faces,
                     min_detection_confidence=self.min_detection_confidence,
+                    min_tracking_confidence=self.min_tracking_confidence,
                 )
             self._warm = False
+            self._face_seen = False
         return self._graph
 
     def _process(self, img: NDArray[np.uint8]) -> Any:
@@ -114,9 +126,13 @@ class MediaPipeFaceMesh:
         # calculators in its own threads, which may log (TFLite delegates) after the constructor
         # returned; a gap between two blocks (where another thread may wait for descriptor 2, e.g.
         # an image decoding) would let those lines through.
+        # In video mode the tracking calculators log once more when they first run: the run after
+        # the first face was found. The graph is warm after that run.
         with native_stderr_silenced(self.quiet):
             result = self._get_graph().process(img)
-        self._warm = True
+        if self.static_image_mode or self._face_seen:
+            self._warm = True
+        self._face_seen = bool(result.multi_face_landmarks)
         return result
 
     def detect(self, image_rgb: NDArray[np.uint8]) -> list[FaceLandmarks]:

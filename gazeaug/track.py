@@ -1,0 +1,878 @@
+"""Gaze per frame from a video, a folder of images or a camera: what ``gazeaug track`` runs.
+
+Per frame: MediaPipe Face Mesh landmarks (video mode: the face is tracked from
+frame to frame and detected again when lost), PnP head pose, normalization
+(Zhang 2018), the gaze model (:mod:`gazeaug.estimator`: ``.pt`` or ``.onnx``),
+denormalization into the camera frame, One-Euro smoothing
+(:mod:`gazeaug.selection`), and with a rig (:class:`gazeaug.sampling.Rig`)
+the point of gaze and the target looked at (:mod:`gazeaug.scene`) and dwell
+selections. Frames without a face, and frames whose eyes are closed (a blink:
+:func:`gazeaug.faces.eye_openness` below ``TrackSettings.blink_openness``),
+are flagged in the output, never given a guessed gaze.
+
+Outputs in the output folder (each written under a temporary name and moved in
+place when the run ends, also on Ctrl-C, so a file is complete up to the last
+frame processed and an older run's file is only replaced by a complete one):
+
+``gaze.csv``
+    One row per input frame (:data:`COLUMNS`; with a rig also :data:`RIG_COLUMNS`).
+    Empty cells where a value does not exist (no face, eyes closed).
+``selections.csv`` (with a rig)
+    One row per selection: ``frame,time_s,target,dwell_start_s``.
+``overlay.mp4`` (unless ``video=False``)
+    The frames with the face box, the gaze arrow, and with a rig the targets,
+    the one looked at, the dwell's progress and each selection.
+``summary.json``
+    What :func:`track` returns.
+
+Columns (camera frame: OpenCV, x right, y down, z forward, mm; angles
+:mod:`facemesh.conventions`' pitch/yaw, degrees):
+
+- ``frame`` (0-based input frame), ``time_s`` (video time; a folder: frame / fps;
+  a camera: seconds since the start), ``status`` (``ok``, ``no_face``,
+  ``eyes_closed``, ``unreadable`` (a frame that could not be decoded),
+  ``failed`` (pose or normalization failed; ``note`` says why)), ``face_found`` (0/1);
+- ``gaze_x, gaze_y, gaze_z``: the unit gaze direction (smoothed when smoothing
+  is on), and ``pitch_deg, yaw_deg`` of it; ``raw_pitch_deg, raw_yaw_deg``: the
+  model's, before smoothing;
+- ``head_pitch_deg, head_yaw_deg``: the head pose (the direction the face points);
+- ``eye_x_mm, eye_y_mm, eye_z_mm``: the midpoint of the two eye centres;
+  ``origin_x_mm, origin_y_mm, origin_z_mm``: the face centre, where the gaze
+  ray starts (the model's labels are directions from it: Zhang's
+  normalization);
+- ``openness``: the eyes' lid gap over width (about 0.3-0.45 open);
+- with a rig, rig frame: ``pog_x_mm, pog_y_mm, pog_z_mm`` (the point of gaze:
+  the ray's first hit on a target or plane), ``surface`` (what it lies on),
+  ``target`` (the target looked at, with the selection's angular margin),
+  ``selected`` (the target selected at this frame).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from facemesh.types import CameraIntrinsics
+
+from .errors import GazeAugError
+from .selection import DwellSelector, OneEuroFilter, SelectionSettings, SmoothingSettings
+
+__all__ = [
+    "TrackSettings",
+    "Frame",
+    "FrameSource",
+    "open_source",
+    "track",
+    "COLUMNS",
+    "RIG_COLUMNS",
+    "STAGES",
+    "IMAGE_SUFFIXES",
+]
+
+#: The columns of ``gaze.csv`` (module docstring).
+COLUMNS = (
+    "frame",
+    "time_s",
+    "status",
+    "face_found",
+    "gaze_x",
+    "gaze_y",
+    "gaze_z",
+    "pitch_deg",
+    "yaw_deg",
+    "raw_pitch_deg",
+    "raw_yaw_deg",
+    "head_pitch_deg",
+    "head_yaw_deg",
+    "eye_x_mm",
+    "eye_y_mm",
+    "eye_z_mm",
+    "origin_x_mm",
+    "origin_y_mm",
+    "origin_z_mm",
+    "openness",
+    "note",
+)
+#: The columns added with a rig.
+RIG_COLUMNS = ("pog_x_mm", "pog_y_mm", "pog_z_mm", "surface", "target", "selected")
+#: The timed stages (milliseconds per frame in the summary).
+STAGES = ("decode", "landmarks", "pose", "normalize", "model", "rig", "output")
+#: Image files a folder source reads, in name order.
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+#: Consecutive undecodable video frames after which a video is taken to have ended.
+MAX_BAD_FRAMES = 25
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """How :func:`track` runs (defaults documented per field).
+
+    Attributes:
+        smoothing: One-Euro settings for the gaze (:class:`SmoothingSettings`); None turns smoothing off.
+        selection: dwell and margin settings (:class:`SelectionSettings`), used with a rig.
+        blink_openness: eyes whose lid gap over width is below this are closed (default 0.12;
+            open eyes measure 0.3-0.45, closed ones below 0.1).
+        tracking: MediaPipe's video mode (default True); False detects every frame afresh.
+        max_frames: stop after this many input frames (default: all).
+        folder_fps: frame rate of a folder of images (default: its ``sequence.json``'s ``fps``, else 30).
+        video: write ``overlay.mp4`` (default True).
+        show: show the overlay in a window while running (needs a display; default False).
+    """
+
+    smoothing: SmoothingSettings | None = SmoothingSettings()
+    selection: SelectionSettings = SelectionSettings()
+    blink_openness: float = 0.12
+    tracking: bool = True
+    max_frames: int | None = None
+    folder_fps: float | None = None
+    video: bool = True
+    show: bool = False
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.blink_openness, (int, float)) and 0 <= self.blink_openness < 1):
+            raise GazeAugError(f"blink_openness: expected a number from 0 to 1, got {self.blink_openness!r}")
+        if self.max_frames is not None and not (
+            isinstance(self.max_frames, int) and not isinstance(self.max_frames, bool) and self.max_frames >= 1
+        ):
+            raise GazeAugError(f"max_frames: expected an integer >= 1, got {self.max_frames!r}")
+        f = self.folder_fps
+        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and 0 < f <= 1000):
+            raise GazeAugError(f"folder_fps: expected a number > 0 and <= 1000, got {f!r}")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One input frame.
+
+    ``bgr``: (H, W, 3) uint8 as decoded (OpenCV's channel order), or None when the frame could not be
+    decoded (``error`` says why). ``time_s``: seconds from the start of the source.
+    """
+
+    index: int
+    time_s: float
+    bgr: NDArray[np.uint8] | None
+    error: str | None = None
+
+
+@dataclass
+class FrameSource:
+    """Frames of a video file, a folder of images or a camera, in order (:func:`open_source`).
+
+    Attributes:
+        name: the source as given.
+        kind: ``video``, ``folder`` or ``camera``.
+        fps: frames per second (a camera's as it reports it; 30 when it does not say).
+        frame_count: frames in a video or folder (None for a camera, or a video that does not say).
+        size_wh: (width, height) of the frames, when known before reading.
+    """
+
+    name: str
+    kind: str
+    fps: float
+    frame_count: int | None
+    size_wh: tuple[int, int] | None
+    _capture: Any = None
+    _files: list[Path] = field(default_factory=list)
+    bad_frames: int = 0
+
+    def __iter__(self) -> Iterator[Frame]:
+        if self.kind == "folder":
+            return self._folder()
+        return self._video()
+
+    def prefetched(self, depth: int = 4) -> Iterator[Frame]:
+        """The frames, decoded ``depth`` ahead in a background thread.
+
+        OpenCV decodes without holding the GIL, so decoding overlaps the work on the previous
+        frame. A camera is read in the calling thread: frames queued ahead of a slower loop would
+        only add latency.
+        """
+        if self.kind == "camera":
+            yield from self
+            return
+        import queue
+        import threading
+
+        q: queue.Queue[Any] = queue.Queue(maxsize=depth)
+        stop = threading.Event()
+        end = object()
+
+        def work() -> None:
+            try:
+                for fr in self:
+                    while not stop.is_set():
+                        try:
+                            q.put(fr, timeout=0.1)
+                            break
+                        except queue.Full:
+                            continue
+                    if stop.is_set():
+                        return
+                q.put(end)
+            except BaseException as exc:  # noqa: BLE001 - raised again in the reading thread
+                q.put(exc)
+
+        t = threading.Thread(target=work, name="track-decode", daemon=True)
+        t.start()
+        try:
+            while True:
+                item = q.get()
+                if item is end:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            stop.set()
+            t.join()
+
+    def _folder(self) -> Iterator[Frame]:
+        import cv2
+
+        for i, p in enumerate(self._files):
+            data = np.fromfile(str(p), dtype=np.uint8) if p.is_file() else np.zeros(0, np.uint8)
+            bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+            if bgr is None:
+                self.bad_frames += 1
+                yield Frame(i, i / self.fps, None, f"{p.name}: not a readable image")
+                continue
+            yield Frame(i, i / self.fps, np.asarray(bgr, dtype=np.uint8))
+
+    def _video(self) -> Iterator[Frame]:
+        import cv2
+
+        cap = self._capture
+        i, bad, start = 0, 0, time.monotonic()
+        while True:
+            ok, bgr = cap.read()
+            if self.kind == "camera":
+                t = time.monotonic() - start
+            else:
+                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+                t = ms / 1000.0 if ms and ms > 0 and i > 0 else i / self.fps
+            if ok and bgr is not None:
+                bad = 0
+                yield Frame(i, t, np.asarray(bgr, dtype=np.uint8))
+            else:
+                # the end, a camera gone, or a frame that does not decode: go on while frames remain
+                more = self.kind == "video" and self.frame_count is not None and i < self.frame_count - 1
+                bad += 1
+                if not more or bad > MAX_BAD_FRAMES:
+                    return
+                self.bad_frames += 1
+                yield Frame(i, i / self.fps, None, "frame could not be decoded")
+            i += 1
+
+    def close(self) -> None:
+        """Release the video or camera."""
+        if self._capture is not None:
+            self._capture.release()
+            self._capture = None
+
+
+def _is_camera(spec: str) -> bool:
+    return spec.isdigit() or spec.startswith("/dev/video")
+
+
+def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -> FrameSource:
+    """Open a video file, a folder of images (sorted by name) or a camera (``0``, ``/dev/video0``).
+
+    Raises:
+        GazeAugError: nothing at that path, a folder without images, a video or camera that does
+            not open.
+    """
+    import cv2
+
+    name = str(spec)
+    if _is_camera(name):
+        cap = cv2.VideoCapture(int(name) if name.isdigit() else name)
+        if not cap.isOpened():
+            raise GazeAugError(f"camera {name}: cannot be opened (is it connected, and free?)")
+        fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+        return FrameSource(name, "camera", float(fps), None, None, cap)
+    p = Path(name)
+    if p.is_dir():
+        files = sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES and not q.name.startswith("."))
+        if not files:
+            raise GazeAugError(f"{p}: the folder has no images ({', '.join(IMAGE_SUFFIXES)})")
+        fps = folder_fps or _sequence_fps(p) or 30.0
+        return FrameSource(name, "folder", float(fps), len(files), None, None, files)
+    if not p.exists():
+        raise GazeAugError(f"{p}: no such video, folder or camera")
+    cap = cv2.VideoCapture(str(p))
+    if not cap.isOpened():
+        cap.release()
+        raise GazeAugError(f"{p}: cannot be opened as a video")
+    fps = cap.get(cv2.CAP_PROP_FPS)
+    fps = float(fps) if fps and math.isfinite(fps) and 0 < fps <= 1000 else 30.0
+    count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
+    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    return FrameSource(name, "video", fps, count, size, cap)
+
+
+def _sequence_fps(folder: Path) -> float | None:
+    """The ``fps`` of a simulated sequence's ``sequence.json`` in ``folder``, if any."""
+    p = folder / "sequence.json"
+    try:
+        fps = json.loads(p.read_text(encoding="utf-8")).get("fps") if p.is_file() else None
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(fps) if isinstance(fps, (int, float)) and 0 < fps <= 1000 else None
+
+
+class _Outputs:
+    """The output files, written under temporary names and moved in place by :meth:`close`."""
+
+    def __init__(self, out_dir: Path, columns: tuple[str, ...], with_rig: bool):
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.dir = out_dir
+        self.final: dict[str, Path] = {"gaze": out_dir / "gaze.csv"}
+        self.part: dict[str, Path] = {"gaze": out_dir / ".gaze.csv.part"}
+        self._gaze = open(self.part["gaze"], "w", newline="", encoding="utf-8")  # noqa: SIM115
+        self._gw = csv.DictWriter(self._gaze, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
+        self._gw.writeheader()
+        self._sel = None
+        if with_rig:
+            self.final["selections"] = out_dir / "selections.csv"
+            self.part["selections"] = out_dir / ".selections.csv.part"
+            self._sel = open(self.part["selections"], "w", newline="", encoding="utf-8")  # noqa: SIM115
+            self._sel.write("frame,time_s,target,dwell_start_s\n")
+        self._video: Any = None
+        self._writer: Any = None
+        self._closed = False
+
+    def open_video(self, size_wh: tuple[int, int], fps: float) -> None:
+        import cv2
+
+        self.final["video"] = self.dir / "overlay.mp4"
+        self.part["video"] = self.dir / ".overlay.part.mp4"
+        self._video = cv2.VideoWriter(str(self.part["video"]), cv2.VideoWriter.fourcc(*"mp4v"), fps, size_wh)
+        if not self._video.isOpened():
+            self._video = None
+            self.final.pop("video")
+            self.part.pop("video").unlink(missing_ok=True)
+            raise GazeAugError(f"{self.dir}: OpenCV cannot write an mp4 video here (no mp4v encoder?); use --no-video")
+
+    def row(self, values: dict[str, Any]) -> None:
+        self._gw.writerow(values)
+
+    def selection(self, frame: int, t: float, target: str, start: float) -> None:
+        assert self._sel is not None
+        self._sel.write(f"{frame},{t:.4f},{target},{start:.4f}\n")
+        self._sel.flush()
+
+    def frame(self, bgr: NDArray[np.uint8]) -> None:
+        """Queue one overlay frame; a background thread encodes it (OpenCV encodes without the GIL)."""
+        if self._video is None:
+            return
+        if self._writer is None:
+            import queue
+            import threading
+
+            self._queue: Any = queue.Queue(maxsize=4)
+            self._writer = threading.Thread(target=self._encode, name="track-encode", daemon=True)
+            self._writer.start()
+        self._queue.put(bgr)
+
+    def _encode(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            self._video.write(item)
+
+    def close(self, keep: bool = True) -> dict[str, str]:
+        """Close every file and move it in place (``keep``) or delete it.
+
+        Returns {kind: final path} of what was moved in place. A second call does nothing.
+        """
+        if self._closed:
+            return {}
+        self._closed = True
+        self._gaze.close()
+        if self._sel is not None:
+            self._sel.close()
+        if self._writer is not None:
+            self._queue.put(None)
+            self._writer.join()
+        if self._video is not None:
+            self._video.release()
+        out = {}
+        for k, part in self.part.items():
+            if part.exists():
+                if keep:
+                    os.replace(part, self.final[k])
+                    out[k] = str(self.final[k])
+                else:
+                    part.unlink()
+        return out
+
+
+def _fmt(v: float | None, digits: int) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
+
+
+@dataclass
+class _Timer:
+    ms: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    _t: float = 0.0
+
+    def start(self) -> None:
+        self._t = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.ms[stage] += (now - self._t) * 1000.0
+        self._t = now
+
+
+class _FrameGaze:
+    """The per-frame work of :func:`track`: landmarks to gaze to the rig, as one row of ``gaze.csv``."""
+
+    def __init__(
+        self,
+        estimator: Any,
+        camera: CameraIntrinsics | None,
+        rig: Any,
+        settings: TrackSettings,
+        timer: _Timer,
+        counts: dict[str, int],
+    ):
+        from facemesh.landmarks.mediapipe import MediaPipeFaceMesh
+
+        self.estimator, self.camera, self.rig, self.settings = estimator, camera, rig, settings
+        self.timer, self.counts = timer, counts
+        self.detector = MediaPipeFaceMesh(static_image_mode=not settings.tracking, max_num_faces=1)
+        self.filter = OneEuroFilter(settings.smoothing) if settings.smoothing is not None else None
+        self.selector = DwellSelector(settings.selection)
+        self.scene = rig.scene if rig is not None else None
+        self.r_rig = rig.camera_rotation() if rig is not None else None
+        self.c_rig = np.asarray(rig.camera_position_mm) if rig is not None else None
+        self._cams: dict[tuple[int, int], CameraIntrinsics] = {}
+
+    def camera_for(self, w: int, h: int) -> CameraIntrinsics:
+        """The user's camera (checked against the frame size), else per frame size the rig's or the default."""
+        from facemesh.camera import camera_for_image
+
+        if self.camera is not None:
+            if self.camera.image_size != (w, h):
+                c = self.camera
+                raise GazeAugError(
+                    f"the camera ({c.source}) is for {c.image_size[0]}x{c.image_size[1]} frames, "
+                    f"the source's are {w}x{h}"
+                )
+            return self.camera
+        if (w, h) not in self._cams:  # a folder's images may differ in size
+            if self.rig is not None and tuple(self.rig.image_size_wh) == (w, h):
+                self._cams[(w, h)] = self.rig.camera()
+            else:
+                self._cams[(w, h)] = camera_for_image(None, w, h, warn=not self._cams)
+        return self._cams[(w, h)]
+
+    def __call__(self, fr: Frame, bgr: NDArray[np.uint8], cam: CameraIntrinsics) -> tuple[dict[str, Any], Any]:
+        """One decoded frame -> (its row, what the overlay draws: (face, model, pose, refs) or None)."""
+        import cv2
+
+        from facemesh.conventions import pitchyaw_to_vector, rotation_to_head_pitchyaw, vector_to_pitchyaw
+        from facemesh.landmarks.base import paired_face_model, select_face
+        from facemesh.pose import solve_head_pose
+        from facemesh.types import FaceMeshError
+
+        from .camera import reference_points
+        from .faces import eye_openness
+        from .normalize import normalize_image
+
+        s, timer = self.settings, self.timer
+        row: dict[str, Any] = {"frame": fr.index, "time_s": f"{fr.time_s:.4f}", "face_found": 0}
+        image = np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+        faces = self.detector.detect(image)
+        timer.lap("landmarks")
+        if not faces:
+            row["status"] = "no_face"
+            if self.filter is not None:
+                self.filter.reset()
+            return row, None
+        self.counts["frames_with_face"] += 1
+        row["face_found"] = 1
+        face = select_face(faces, None, source=fr.error or "frame")
+        model = paired_face_model(face, self.detector, None)
+        openness = eye_openness(face.points_px)
+        row["openness"] = _fmt(openness, 3)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # a far-off landmark (ReprojectionWarning): per frame, not news
+                pose = solve_head_pose(face.points_px[: model.num_points], model.vertices_mm, cam)
+        except FaceMeshError as exc:  # PoseError: the frame is flagged, the run goes on
+            self.counts["failed_frames"] += 1
+            row.update(status="failed", note=str(exc).splitlines()[0][:200])
+            timer.lap("pose")
+            return row, None
+        timer.lap("pose")
+        refs = reference_points(pose.rotation, pose.translation_mm, model.vertices_mm, model.keypoints)
+        hp = np.degrees(rotation_to_head_pitchyaw(pose.rotation))
+        eye_mid = (refs["left"] + refs["right"]) / 2
+        row.update(
+            head_pitch_deg=_fmt(hp[0], 3),
+            head_yaw_deg=_fmt(hp[1], 3),
+            **{f"eye_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", eye_mid)},
+            **{f"origin_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", refs["face"])},
+        )
+        drawn = (face, model, pose, refs)
+        if openness is not None and openness < s.blink_openness:
+            self.counts["frames_eyes_closed"] += 1
+            row["status"] = "eyes_closed"
+            return row, drawn
+        try:
+            sample = normalize_image(
+                image, cam, pose, model.vertices_mm, model.keypoints, settings=self.estimator.normalization
+            )
+        except GazeAugError as exc:
+            self.counts["failed_frames"] += 1
+            row.update(status="failed", note=str(exc).splitlines()[0][:200])
+            timer.lap("normalize")
+            return row, drawn
+        timer.lap("normalize")
+        assert sample.face is not None
+        pred = self.estimator.predict(sample.left.image[None], sample.right.image[None], sample.face.head_pose[None])[0]
+        g = sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred))
+        raw = np.degrees(vector_to_pitchyaw(g))
+        py = self.filter(fr.time_s, raw) if self.filter is not None else raw
+        g = pitchyaw_to_vector(np.radians(py))
+        timer.lap("model")
+        row.update(
+            status="ok",
+            gaze_x=_fmt(g[0], 6),
+            gaze_y=_fmt(g[1], 6),
+            gaze_z=_fmt(g[2], 6),
+            pitch_deg=_fmt(py[0], 3),
+            yaw_deg=_fmt(py[1], 3),
+            raw_pitch_deg=_fmt(raw[0], 3),
+            raw_yaw_deg=_fmt(raw[1], 3),
+        )
+        if self.scene is not None:
+            from facemesh.conventions import camera_to_rig_directions, camera_to_rig_points
+
+            assert self.r_rig is not None and self.c_rig is not None
+
+            o = camera_to_rig_points(refs["face"], self.r_rig, self.c_rig)
+            d = camera_to_rig_directions(g, self.r_rig)
+            look = self.scene.look(o, d, s.selection.margin_deg)
+            row.update(
+                **{f"pog_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", look.point_mm)},
+                surface=look.surface or "",
+                target=look.target or "",
+            )
+        return row, drawn
+
+
+def track(
+    source: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    estimator: Any,
+    *,
+    camera: CameraIntrinsics | None = None,
+    rig: Any = None,
+    settings: TrackSettings = TrackSettings(),
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Track gaze through ``source`` and write the outputs (module docstring) into ``out_dir``.
+
+    Args:
+        source: a video file, a folder of images, or a camera (``0``, ``/dev/video0``).
+        out_dir: the output folder (created).
+        estimator: a :class:`gazeaug.estimator.GazeEstimator`.
+        camera: the source's intrinsics (checked against the frame size); default: the rig's
+            camera when the frames have the rig's image size, else facemesh's documented default.
+        rig: a :class:`gazeaug.sampling.Rig` for the point of gaze and selections (its targets and
+            planes), or None.
+        settings: :class:`TrackSettings`.
+        progress: print a progress bar to stderr.
+
+    Returns:
+        The summary: ``frames``, ``frames_with_face``, ``frames_eyes_closed``, ``unreadable_frames``,
+        ``failed_frames``, ``fps`` (end to end, decoding included), ``ms_per_frame`` per stage
+        (:data:`STAGES`; decoding runs ahead in its own thread, so ``decode`` is the wait for it),
+        ``latency_ms`` (from taking a decoded frame to its gaze: median and 95th percentile),
+        ``selections``, ``outputs`` (paths), ``interrupted``.
+
+    Raises:
+        GazeAugError: a source that does not open, a camera for another frame size (nothing is
+            written then, and older outputs stay).
+        KeyboardInterrupt: after the outputs were closed and moved in place (complete up to the last frame).
+    """
+    s = settings
+    estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
+    src = open_source(source, s.folder_fps)
+    with_rig = rig is not None
+    outputs = _Outputs(Path(out_dir), COLUMNS + (RIG_COLUMNS if with_rig else ()), with_rig)
+    timer = _Timer()
+    counts = dict.fromkeys(
+        ("frames", "frames_with_face", "frames_eyes_closed", "unreadable_frames", "failed_frames"), 0
+    )
+    work = _FrameGaze(estimator, camera, rig, s, timer, counts)
+    selections: list[dict[str, Any]] = []
+    latencies: list[float] = []
+    cam: CameraIntrinsics | None = None
+    interrupted = False
+    window = _open_window() if s.show else None
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        total = src.frame_count if s.max_frames is None else min(src.frame_count or s.max_frames, s.max_frames)
+        bar = tqdm(total=total, unit="frame", desc="track", dynamic_ncols=True)
+    last_sel: tuple[str, float] | None = None
+    frames = src.prefetched()
+    threads = _one_torch_thread(estimator)
+    wall0 = time.perf_counter()
+    try:
+        while s.max_frames is None or counts["frames"] < s.max_frames:
+            timer.start()
+            fr = next(frames, None)
+            if fr is None:
+                break
+            t_read = time.perf_counter()
+            timer.lap("decode")
+            counts["frames"] += 1
+            drawn = None
+            if fr.bgr is None:
+                counts["unreadable_frames"] += 1
+                row: dict[str, Any] = {
+                    "frame": fr.index,
+                    "time_s": f"{fr.time_s:.4f}",
+                    "face_found": 0,
+                    "status": "unreadable",
+                    "note": fr.error or "",
+                }
+            else:
+                h, w = fr.bgr.shape[:2]
+                cam = work.camera_for(w, h)
+                if s.video and "video" not in outputs.part:
+                    outputs.open_video((w, h), src.fps)
+                row, drawn = work(fr, fr.bgr, cam)
+            if with_rig:
+                sel = work.selector.update(fr.index, fr.time_s, row.get("target") or None)
+                if sel is not None:
+                    selections.append({"frame": sel.frame, "time_s": sel.time_s, "target": sel.target})
+                    outputs.selection(sel.frame, sel.time_s, sel.target, sel.start_s)
+                    row["selected"] = sel.target
+                    last_sel = (sel.target, fr.time_s)
+                timer.lap("rig")
+            if row.get("status") == "ok":
+                latencies.append((time.perf_counter() - t_read) * 1000.0)
+            outputs.row(row)
+            if fr.bgr is not None and cam is not None and (s.video or window is not None):
+                pic = _overlay(fr.bgr, cam, drawn, row, rig, work.selector, fr.time_s, last_sel)
+                outputs.frame(pic)
+                if window is not None and not _show(window, pic):
+                    break
+            timer.lap("output")
+            if bar is not None:
+                bar.update(1)
+    except KeyboardInterrupt:
+        interrupted = True
+    except BaseException:
+        outputs.close(keep=False)  # a bad input found mid-run: no half-made outputs, older ones stay
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        written = outputs.close()
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()  # stops the decoding thread before the capture is released
+        src.close()
+        work.detector.close()
+        _one_torch_thread(estimator, restore=threads)
+        if window is not None:
+            _close_window()
+    wall = time.perf_counter() - wall0
+    n = max(counts["frames"], 1)
+    lat = np.asarray(latencies)
+    summary: dict[str, Any] = {
+        "source": src.name,
+        "kind": src.kind,
+        **counts,
+        "fps": round(counts["frames"] / wall, 2) if wall > 0 else None,
+        "seconds": round(wall, 3),
+        "ms_per_frame": {k: round(v / n, 3) for k, v in timer.ms.items()},
+        "latency_ms": {
+            "median": round(float(np.median(lat)), 2) if lat.size else None,
+            "p95": round(float(np.percentile(lat, 95)), 2) if lat.size else None,
+        },
+        "camera": cam.source if cam is not None else None,
+        "model": str(estimator.path),
+        "model_kind": estimator.kind,
+        "smoothing": s.smoothing is not None,
+        "rig": rig.name if with_rig else None,
+        "selections": selections if with_rig else None,
+        "outputs": written,
+        "interrupted": interrupted,
+    }
+    from facemesh.io import atomic_write
+
+    with atomic_write(Path(out_dir) / "summary.json") as fh:
+        fh.write(json.dumps(summary, indent=1).encode("utf-8"))
+    summary["outputs"]["summary"] = str(Path(out_dir) / "summary.json")
+    if interrupted:
+        raise KeyboardInterrupt
+    return summary
+
+
+def _one_torch_thread(estimator: Any, restore: int | None = None) -> int | None:
+    """Set PyTorch to one thread (returning the count to restore), or restore it.
+
+    A PyTorch model on one sample per frame runs fastest on one thread: 1.1 ms against 3.2 ms with
+    two threads competing with MediaPipe's.
+    """
+    if getattr(estimator, "kind", None) != "pytorch":
+        return None
+    from .models import import_torch
+
+    torch = import_torch()
+    before = int(torch.get_num_threads())
+    if restore is not None:
+        torch.set_num_threads(restore)
+    else:
+        torch.set_num_threads(1)
+    return before
+
+
+_WINDOW = "gazeaug track"
+
+
+def _open_window() -> Any:
+    """A window for ``--show``, or None (with a warning) when there is no display."""
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and os.name != "nt":
+        warnings.warn("--show: no display (DISPLAY is not set); the overlay is not shown", stacklevel=3)
+        return None
+    try:
+        import cv2
+
+        cv2.namedWindow(_WINDOW, cv2.WINDOW_NORMAL)
+    except Exception as exc:  # noqa: BLE001 - a headless OpenCV build raises cv2.error
+        warnings.warn(f"--show: OpenCV cannot open a window ({str(exc).splitlines()[0][:120]})", stacklevel=3)
+        return None
+    return _WINDOW
+
+
+def _show(window: Any, bgr: NDArray[np.uint8]) -> bool:
+    """Show one frame; False when the user pressed q or Esc."""
+    import cv2
+
+    cv2.imshow(window, bgr)
+    return (cv2.waitKey(1) & 0xFF) not in (ord("q"), 27)
+
+
+def _close_window() -> None:
+    import cv2
+
+    try:
+        cv2.destroyWindow(_WINDOW)
+    except Exception:  # noqa: BLE001, S110 - already closed by the user
+        pass
+
+
+def _overlay(
+    bgr: NDArray[np.uint8],
+    cam: CameraIntrinsics,
+    fit: Any,
+    row: dict[str, Any],
+    rig: Any,
+    selector: DwellSelector,
+    t_s: float,
+    last_sel: tuple[str, float] | None,
+) -> NDArray[np.uint8]:
+    """The frame (BGR, for the video) with the face box, the gaze arrow, the targets and the dwell."""
+    import cv2
+
+    from facemesh.conventions import rig_to_camera_points
+    from facemesh.pose import project_points
+
+    pic = bgr  # drawn on in place: the decoded frame is not used after this
+    h, w = pic.shape[:2]
+    th = max(1, w // 500)
+    status = row.get("status", "")
+    if rig is not None:
+        r, c = rig.camera_rotation(), np.asarray(rig.camera_position_mm)
+        looked = row.get("target") or None
+        for tg in rig.targets:
+            colour = (0, 200, 255) if tg.name == looked else (200, 200, 200)
+            if last_sel is not None and last_sel[0] == tg.name and t_s - last_sel[1] < 0.5:
+                colour = (0, 220, 0)
+            centre = rig_to_camera_points(tg.centre, r, c)
+            if centre[2] <= 1:
+                continue
+            (u, v), rad = project_points(centre[None], cam)[0], 0.0
+            if hasattr(tg, "radius_mm"):
+                rad = tg.radius_mm * cam.matrix[0, 0] / centre[2]
+            else:
+                corners = np.array(
+                    [
+                        [x, y, z]
+                        for x in (tg.min_mm[0], tg.max_mm[0])
+                        for y in (tg.min_mm[1], tg.max_mm[1])
+                        for z in (tg.min_mm[2], tg.max_mm[2])
+                    ]
+                )
+                pc = rig_to_camera_points(corners, r, c)
+                if (pc[:, 2] > 1).all():
+                    px = project_points(pc, cam)
+                    rad = float(np.max(np.linalg.norm(px - [u, v], axis=1)))
+            if not (np.isfinite(u) and np.isfinite(v) and abs(u) < 4 * w and abs(v) < 4 * h):
+                continue
+            cv2.circle(
+                pic, (int(round(u)), int(round(v))), max(3, int(round(min(rad, 2 * w)))), colour, th, cv2.LINE_AA
+            )
+            cv2.putText(
+                pic, tg.name, (int(u) + 4, int(v) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * th, colour, th, cv2.LINE_AA
+            )
+        if selector.current is not None and status == "ok":
+            p = selector.progress(t_s)
+            cv2.rectangle(pic, (10, h - 20), (10 + int(150 * p), h - 10), (0, 200, 255), -1)
+            cv2.rectangle(pic, (10, h - 20), (160, h - 10), (200, 200, 200), 1)
+        if last_sel is not None and t_s - last_sel[1] < 1.0:
+            cv2.putText(
+                pic,
+                f"selected: {last_sel[0]}",
+                (10, 50),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.6 * th,
+                (0, 220, 0),
+                th,
+                cv2.LINE_AA,
+            )
+    if fit is not None:
+        face, _model, _pose, refs = fit
+        x0, y0 = face.points_px.min(axis=0)
+        x1, y1 = face.points_px.max(axis=0)
+        cv2.rectangle(pic, (int(x0), int(y0)), (int(x1), int(y1)), (255, 200, 0), th)
+        if status == "ok":
+            g = np.array([float(row["gaze_x"]), float(row["gaze_y"]), float(row["gaze_z"])])
+            o = refs["face"]
+            a, b = project_points(np.stack([o, o + 150.0 * g]), cam)
+            if np.isfinite(a).all() and np.isfinite(b).all():
+                cv2.arrowedLine(
+                    pic,
+                    tuple(int(round(v)) for v in a),
+                    tuple(int(round(v)) for v in b),
+                    (40, 40, 255),
+                    2 * th,
+                    cv2.LINE_AA,
+                    tipLength=0.15,
+                )
+    cv2.putText(
+        pic, f"{row['frame']}  {status}", (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, (255, 255, 255), th, cv2.LINE_AA
+    )
+    return pic

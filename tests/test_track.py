@@ -1,0 +1,216 @@
+"""`gazeaug track`: a real video (or one made from the built-in photo), folders, ONNX, rigs, bad input, Ctrl-C."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch", reason="the gaze model needs torch")
+
+from conftest import face_photo  # noqa: E402
+from helpers import synthetic_h5  # noqa: E402
+
+from gazeaug.cli import main  # noqa: E402
+from gazeaug.track import COLUMNS, RIG_COLUMNS, STAGES  # noqa: E402
+
+STATUSES = {"ok", "no_face", "eyes_closed", "unreadable", "failed"}
+RIG = Path(__file__).resolve().parents[1] / "data_samples" / "rigs" / "wheelchair_objects.yaml"
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    """A small trained model (one epoch on synthetic rows): what it predicts does not matter here."""
+    from gazeaug.train import TrainSettings, train
+
+    d = tmp_path_factory.mktemp("model")
+    train(synthetic_h5(d / "t.h5", n=64), d / "m.pt", TrainSettings(epochs=1, batch_size=32), progress=False)
+    return d / "m.pt"
+
+
+@pytest.fixture(scope="module")
+def video(faces_dir, tmp_path_factory) -> Path:
+    """pexels/video00.mp4 (1280x720, a real person moving), or without ../shared a 24-frame video of the
+    built-in photo drifting by a few pixels (mp4v), written here."""
+    p = faces_dir / "pexels" / "video00.mp4"
+    if p.is_file():
+        return p
+    import cv2
+
+    from facemesh.build import sample_image
+
+    img = cv2.cvtColor(sample_image(), cv2.COLOR_RGB2BGR)
+    out = tmp_path_factory.mktemp("video") / "drift.mp4"
+    w = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (512, 512))
+    for i in range(24):
+        w.write(np.roll(img, (i % 6) - 3, axis=1))
+    w.release()
+    return out
+
+
+def _run(argv, capsys):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_track_video_with_a_rig(model, video, tmp_path, capsys):
+    import cv2
+
+    out = tmp_path / "t"
+    code, stdout, err = _run(
+        ["track", video, "-o", out, "--model", model, "--rig", RIG, "--max-frames", 24, "--quiet"], capsys
+    )
+    assert code == 0, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    # video00's first 13 frames have a hand in front of the face
+    assert summary["frames"] == 24 and summary["frames_with_face"] >= 10
+    assert set(summary["ms_per_frame"]) == set(STAGES) and summary["fps"] > 0
+    assert summary["latency_ms"]["median"] is not None
+    rows = _rows(out / "gaze.csv")
+    assert list(rows[0]) == list(COLUMNS + RIG_COLUMNS)
+    assert [int(r["frame"]) for r in rows] == list(range(24))
+    assert {r["status"] for r in rows} <= STATUSES
+    times = [float(r["time_s"]) for r in rows]
+    assert times == sorted(times) and times[1] > times[0]
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert ok
+    for r in ok:
+        g = np.array([float(r["gaze_x"]), float(r["gaze_y"]), float(r["gaze_z"])])
+        assert abs(np.linalg.norm(g) - 1) < 1e-5
+        # pitch/yaw of the vector, conventions: y = -sin(pitch), x = -cos(pitch) sin(yaw)
+        p, y = math.radians(float(r["pitch_deg"])), math.radians(float(r["yaw_deg"]))
+        assert abs(-math.sin(p) - g[1]) < 1e-4 and abs(-math.cos(p) * math.sin(y) - g[0]) < 1e-4
+        assert 200 < float(r["eye_z_mm"]) < 3000  # a face in front of the camera
+        assert r["openness"]
+    assert (out / "selections.csv").read_text().startswith("frame,time_s,target,dwell_start_s")
+    assert not list(out.glob(".*part*"))
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 24
+    assert json.loads((out / "summary.json").read_text())["frames"] == 24
+
+
+def test_track_onnx_equals_pytorch(model, tmp_path):
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from gazeaug.estimator import load_estimator
+    from gazeaug.export import export_onnx
+    from gazeaug.train import load_model
+
+    m, meta = load_model(model)
+    export_onnx(m, meta, tmp_path / "m.onnx")
+    a, b = load_estimator(model), load_estimator(tmp_path / "m.onnx")
+    assert (a.kind, b.kind) == ("pytorch", "onnx") and a.normalization == b.normalization
+    rng = np.random.default_rng(0)
+    left, right = (rng.integers(0, 256, (3, 36, 60, 3), dtype=np.uint8) for _ in range(2))
+    hp = rng.normal(0, 0.3, (3, 2))
+    np.testing.assert_allclose(a.predict(left, right, hp), b.predict(left, right, hp), atol=1e-4)
+
+
+def test_track_folder_with_a_corrupt_frame_and_closed_eyes(model, faces_dir, tmp_path, capsys):
+    """A folder in name order: an undecodable file is a row marked unreadable and the run goes on;
+    a face with closed eyes is flagged, not given a gaze."""
+    import shutil
+
+    src = tmp_path / "frames"
+    src.mkdir()
+    photo = face_photo(faces_dir, "astronaut.png", any_face=True)
+    for i in range(4):
+        shutil.copy(photo, src / f"{i:03d}{photo.suffix}")
+    (src / "001.png").unlink(missing_ok=True)
+    (src / "001.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 50)  # a PNG header and nothing else
+    closed = faces_dir / "aflw_deca" / "examples_alfw1.png"  # eyes closed (openness about 0.07)
+    if closed.is_file():
+        shutil.copy(closed, src / "004.png")
+    (src / "sequence.json").write_text('{"fps": 10}')
+    out = tmp_path / "t"
+    code, stdout, err = _run(["track", src, "-o", out, "--model", model, "--no-video", "--quiet", "--static"], capsys)
+    assert code == 0, err
+    rows = _rows(out / "gaze.csv")
+    assert [r["status"] for r in rows[:4]] == ["ok", "unreadable", "ok", "ok"]
+    assert [float(r["time_s"]) for r in rows[:3]] == [0.0, 0.1, 0.2]  # the folder's sequence.json: 10 fps
+    assert "001.png" in rows[1]["note"] and not rows[1]["gaze_x"]
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["unreadable_frames"] == 1
+    if closed.is_file():
+        assert rows[4]["status"] == "eyes_closed" and rows[4]["face_found"] == "1" and not rows[4]["gaze_x"]
+        assert float(rows[4]["openness"]) < 0.12
+    assert "video" not in summary["outputs"] and not (out / "overlay.mp4").exists()
+
+
+def test_track_ctrl_c_keeps_complete_files(model, video, tmp_path, monkeypatch):
+    """Ctrl-C mid-run: the CSV holds every frame up to the last, whole; the video is closed and playable."""
+    import cv2
+
+    from gazeaug.estimator import GazeEstimator, load_estimator
+    from gazeaug.track import TrackSettings, track
+
+    est = load_estimator(model)
+    calls = {"n": 0}
+    real = GazeEstimator.predict
+
+    def predict_then_interrupt(self, *a):
+        calls["n"] += 1
+        if calls["n"] == 8:  # the warm-up call, then 6 frames with a gaze, then Ctrl-C
+            raise KeyboardInterrupt
+        return real(self, *a)
+
+    monkeypatch.setattr(GazeEstimator, "predict", predict_then_interrupt)
+    out = tmp_path / "t"
+    with pytest.raises(KeyboardInterrupt):
+        track(video, out, est, settings=TrackSettings(max_frames=50), progress=False)
+    rows = _rows(out / "gaze.csv")
+    assert 6 <= len(rows) < 50 and all(len(r) == len(COLUMNS) and None not in r.values() for r in rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["frames"] == len(rows) + 1
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
+    assert cap.isOpened() and cap.read()[0]
+    assert not list(out.glob(".*part*"))
+
+
+@pytest.mark.parametrize("case", ["missing", "not_video", "empty_folder", "bad_rig", "camera_size", "bad_model"])
+def test_track_bad_input_is_one_line(case, model, video, tmp_path, capsys):
+    src, extra = video, []
+    if case == "missing":
+        src = tmp_path / "nothing.mp4"
+    elif case == "not_video":
+        src = tmp_path / "x.mp4"
+        src.write_text("not a video")
+    elif case == "empty_folder":
+        src = tmp_path / "empty"
+        src.mkdir()
+    elif case == "bad_rig":
+        rig = tmp_path / "r.yaml"
+        rig.write_text(RIG.read_text().replace("radius_mm: 60.0}", "radius_mm: -1}", 1))
+        extra = ["--rig", rig]
+    elif case == "camera_size":
+        cam = tmp_path / "cam.yaml"
+        cam.write_text(
+            "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+            "   data: [ 500., 0., 100., 0., 500., 100., 0., 0., 1. ]\nimage_width: 200\nimage_height: 200\n"
+        )
+        extra = ["--camera", cam]
+    elif case == "bad_model":
+        bad = tmp_path / "m.pt"
+        bad.write_bytes(b"not a model")
+        model = bad
+    out = tmp_path / "o"
+    code, stdout, err = _run(["track", src, "-o", out, "--model", model, "--quiet", "--max-frames", 3] + extra, capsys)
+    assert code == 2, (stdout, err)
+    lines = [x for x in err.strip().splitlines() if "error" in x]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    if case == "bad_rig":
+        assert "line 20" in err and "radius_mm" in err
+    assert not (out / "gaze.csv").exists()
