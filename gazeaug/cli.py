@@ -287,6 +287,15 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--seed", type=_seed, default=0)
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing dataset folder that simulate wrote")
+    sm.add_argument(
+        "--sequence",
+        type=finite_float,
+        default=None,
+        metavar="SECONDS",
+        help="one subject (the one face given) looking at the rig's targets for SECONDS, frames at --fps, "
+        "with truth.csv for `gazeaug track` to score (needs a rig with targets; docs/tracking.md)",
+    )
+    sm.add_argument("--fps", type=finite_float, default=30.0, help="frame rate of a --sequence (default 30)")
     sm.add_argument("--quiet", action="store_true")
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
@@ -728,6 +737,24 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import SimSettings, simulate
 
     faces = list(args.faces) if args.faces else [None]
+    if args.sequence is not None:
+        from .errors import GazeAugError
+        from .sequence import SequenceSettings, simulate_sequence
+
+        if len(faces) != 1:
+            raise GazeAugError(f"--sequence: one subject, so one face; got {len(faces)} faces")
+        seq = simulate_sequence(
+            faces[0],
+            load_rig(args.rig),
+            args.output,
+            sequence=SequenceSettings(seconds=args.sequence, fps=args.fps),
+            seed=args.seed,
+            settings=SimSettings(vary_identity=not args.no_identity_variation),
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+        )
+        print(json.dumps(seq))
+        return 0
     summary = simulate(
         faces,
         load_rig(args.rig),

@@ -508,6 +508,11 @@ class SimSubject:
                 line_y = corners[0, 1] + u * (corners[1, 1] - corners[0, 1])
                 self.lid_weight[i, 0 if head[i, 1] < line_y else 1] = math.sin(math.pi * u)
         head[:, 1] += d.lid_drop_mm * self.lid_weight[:, 0]  # a lower upper lid covers more of the iris
+        # a blink: the upper lid's travel to close the opening (its height at the middle, sin-profiled)
+        self.blink_travel = np.zeros(len(head))
+        for loop in self.contours.values():
+            ids = np.asarray(loop)
+            self.blink_travel[ids] = float(np.ptp(head[ids, 1])) * self.lid_weight[ids, 0]
         self.head = head
         self.triangles = photo.triangles
         tex = _delit(photo.texture, s.delight if s.relight else 0.0) * np.asarray(d.skin_gain)
@@ -569,8 +574,12 @@ class SimSubject:
         camera_matrix: NDArray[np.float64],
         size_wh: tuple[int, int],
         rng: np.random.Generator,
+        blink: float = 0.0,
     ) -> SimFrame:
-        """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame)."""
+        """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame).
+
+        ``blink``: 0 (open, default) to 1 (the upper lids lowered onto the lower ones).
+        """
         import cv2
 
         from facemesh.geometry import vertex_normals
@@ -587,6 +596,8 @@ class SimSubject:
         v[:, 1] -= math.sin(pitch) * (
             s.lid_follow_mm * self.lid_weight[:, 0] + s.lower_lid_follow_mm * self.lid_weight[:, 1]
         )
+        if blink > 0:
+            v[:, 1] += min(float(blink), 1.0) * self.blink_travel
         light = None
         if s.relight:
             # camera frame (y down, z forward): a light in front of the face, mostly from above
@@ -670,15 +681,25 @@ def _rig_pose(
     rig: Rig, rng: np.random.Generator
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """A head pose and a target in the rig's camera frame: (R head -> camera, t mm, target mm)."""
-    r_cam = rig.camera_rotation()
-    cam = np.asarray(rig.camera_position_mm)
-    yaw = math.radians(rig.head_yaw_mean_deg + rig.head_yaw_std_deg * rng.standard_normal())
-    pitch = math.radians(rig.head_pitch_mean_deg + rig.head_pitch_std_deg * rng.standard_normal())
-    head_rig = rotation_from_yaw_pitch(yaw, pitch)
+    yaw = rig.head_yaw_mean_deg + rig.head_yaw_std_deg * rng.standard_normal()
+    pitch = rig.head_pitch_mean_deg + rig.head_pitch_std_deg * rng.standard_normal()
     pos = rng.normal(0.0, rig.head_position_std_mm, 3)
     lo, hi = (np.asarray(c) for c in rig.target_box_mm)
     target = rng.uniform(lo, hi)
-    return r_cam @ head_rig, r_cam @ (pos - cam), r_cam @ (target - cam)
+    return _in_rig_camera(rig, yaw, pitch, pos, target)
+
+
+def _in_rig_camera(
+    rig: Rig, yaw_deg: float, pitch_deg: float, head_position_mm: NDArray[np.float64], target_rig_mm: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A head turned by ``R(yaw, pitch)`` at ``head_position_mm`` and a target, both rig frame, as the rig's
+    camera sees them: (R head -> camera, t mm, target mm), camera frame."""
+    from facemesh.conventions import rig_to_camera_points
+
+    r_cam = rig.camera_rotation()
+    head_rig = rotation_from_yaw_pitch(math.radians(yaw_deg), math.radians(pitch_deg))
+    c = rig.camera_position_mm
+    return r_cam @ head_rig, rig_to_camera_points(head_position_mm, r_cam, c), rig_to_camera_points(target_rig_mm, r_cam, c)
 
 
 def simulate(

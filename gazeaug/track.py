@@ -121,8 +121,16 @@ class TrackSettings:
     Attributes:
         smoothing: One-Euro settings for the gaze (:class:`SmoothingSettings`); None turns smoothing off.
         selection: dwell and margin settings (:class:`SelectionSettings`), used with a rig.
-        blink_openness: eyes whose lid gap over width is below this are closed (default 0.12;
-            open eyes measure 0.3-0.45, closed ones below 0.1).
+        blink_ratio: eyes are closed (a blink) when their openness (lid gap over width,
+            :func:`gazeaug.faces.eye_openness`) falls below this share of the person's own recent
+            openness: the median over the last ``blink_baseline_s`` of frames with a face
+            (default 0.6). Openness differs much between people and with the gaze (lids lower
+            when looking down: 0.1-0.15 for a simulated wheelchair user looking at a table, 0.3-0.45
+            for a frontal photo), so a fixed threshold flags open eyes of some and misses blinks of others.
+        blink_baseline_s: the window of that median, seconds (default 5).
+        blink_openness: below this the eyes are closed while the window holds fewer than 5 frames
+            (the first frames; a folder of unrelated photos), default 0.1 (closed eyes measure
+            below 0.1).
         tracking: MediaPipe's video mode (default True); False detects every frame afresh.
         max_frames: stop after this many input frames (default: all).
         folder_fps: frame rate of a folder of images (default: its ``sequence.json``'s ``fps``, else 30).
@@ -132,7 +140,9 @@ class TrackSettings:
 
     smoothing: SmoothingSettings | None = SmoothingSettings()
     selection: SelectionSettings = SelectionSettings()
-    blink_openness: float = 0.12
+    blink_ratio: float = 0.6
+    blink_baseline_s: float = 5.0
+    blink_openness: float = 0.1
     tracking: bool = True
     max_frames: int | None = None
     folder_fps: float | None = None
@@ -140,8 +150,13 @@ class TrackSettings:
     show: bool = False
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.blink_openness, (int, float)) and 0 <= self.blink_openness < 1):
-            raise GazeAugError(f"blink_openness: expected a number from 0 to 1, got {self.blink_openness!r}")
+        for name in ("blink_openness", "blink_ratio"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 1):
+                raise GazeAugError(f"{name}: expected a number from 0 to below 1, got {v!r}")
+        b = self.blink_baseline_s
+        if not (isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b) and b > 0):
+            raise GazeAugError(f"blink_baseline_s: expected a number > 0, got {b!r}")
         if self.max_frames is not None and not (
             isinstance(self.max_frames, int) and not isinstance(self.max_frames, bool) and self.max_frames >= 1
         ):
@@ -460,6 +475,15 @@ class _FrameGaze:
         self.r_rig = rig.camera_rotation() if rig is not None else None
         self.c_rig = np.asarray(rig.camera_position_mm) if rig is not None else None
         self._cams: dict[tuple[int, int], CameraIntrinsics] = {}
+        self._openness: list[tuple[float, float]] = []  # (time, openness) of the recent frames with a face
+
+    def _closed(self, t_s: float, openness: float) -> bool:
+        """Are the eyes closed? (:class:`TrackSettings`: relative to the person's recent openness.)"""
+        s = self.settings
+        recent = [o for t, o in self._openness if t_s - s.blink_baseline_s <= t <= t_s]
+        closed = openness < (s.blink_ratio * float(np.median(recent)) if len(recent) >= 5 else s.blink_openness)
+        self._openness = [(t, o) for t, o in self._openness if t >= t_s - s.blink_baseline_s] + [(t_s, openness)]
+        return bool(closed)
 
     def camera_for(self, w: int, h: int) -> CameraIntrinsics:
         """The user's camera (checked against the frame size), else per frame size the rig's or the default."""
@@ -529,7 +553,7 @@ class _FrameGaze:
             **{f"origin_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", refs["face"])},
         )
         drawn = (face, model, pose, refs)
-        if openness is not None and openness < s.blink_openness:
+        if openness is not None and self._closed(fr.time_s, openness):
             self.counts["frames_eyes_closed"] += 1
             row["status"] = "eyes_closed"
             return row, drawn
@@ -611,9 +635,13 @@ def track(
             written then, and older outputs stay).
         KeyboardInterrupt: after the outputs were closed and moved in place (complete up to the last frame).
     """
+    from .sequence import read_truth, sequence_accuracy
+
     s = settings
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
+    truth = read_truth(src.name) if src.kind == "folder" else None
+    kept: list[dict[str, Any]] = []  # the rows, when a simulated sequence's truth is there to score them
     with_rig = rig is not None
     outputs = _Outputs(Path(out_dir), COLUMNS + (RIG_COLUMNS if with_rig else ()), with_rig)
     timer = _Timer()
@@ -672,6 +700,8 @@ def track(
             if row.get("status") == "ok":
                 latencies.append((time.perf_counter() - t_read) * 1000.0)
             outputs.row(row)
+            if truth is not None:
+                kept.append(row)
             if fr.bgr is not None and cam is not None and (s.video or window is not None):
                 pic = _overlay(fr.bgr, cam, drawn, row, rig, work.selector, fr.time_s, last_sel)
                 outputs.frame(pic)
@@ -720,6 +750,8 @@ def track(
         "outputs": written,
         "interrupted": interrupted,
     }
+    if truth is not None and rig is not None:
+        summary["accuracy"] = sequence_accuracy(kept, selections, truth, s.selection.dwell_s)
     from facemesh.io import atomic_write
 
     with atomic_write(Path(out_dir) / "summary.json") as fh:
