@@ -226,7 +226,11 @@ def build_parser() -> argparse.ArgumentParser:
     tk.add_argument("source", help="a video file, a folder of images (name order), or a camera (0, /dev/video0)")
     tk.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     tk.add_argument(
-        "--model", type=Path, required=True, help="a gaze model: .pt (gazeaug train) or .onnx (gazeaug export)"
+        "--model",
+        type=Path,
+        default=None,
+        help="a gaze model: .pt (gazeaug train) or .onnx (gazeaug export) (default: the built-in demo model, "
+        "trained on simulated people for the wheelchair rig; docs/tracking.md)",
     )
     tk.add_argument(
         "--camera",
@@ -250,7 +254,34 @@ def build_parser() -> argparse.ArgumentParser:
     tk.add_argument("--static", action="store_true", help="detect the face afresh in every frame (no tracking)")
     tk.add_argument("--no-video", action="store_true", help="do not write overlay.mp4")
     tk.add_argument("--show", action="store_true", help="show the overlay in a window (needs a display; q quits)")
+    tk.add_argument(
+        "--calibration", type=Path, default=None, help="the user's calibration for this model (gazeaug calibrate)"
+    )
     tk.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    cb = sub.add_parser(
+        "calibrate",
+        help="fit a user's correction of a model's gaze from a video of them looking at known points",
+        description="Writes USER.json for `gazeaug track --calibration`; prints one JSON line (the kind of "
+        "correction kept by leave-one-point-out, the errors before and after). See docs/tracking.md.",
+    )
+    cb.add_argument(
+        "source", help="a video file or folder of images (a simulated --sequence folder needs no --targets)"
+    )
+    cb.add_argument("-o", "--output", type=Path, required=True, help="the calibration file (.json)")
+    cb.add_argument(
+        "--model", type=Path, default=None, help="the model to calibrate (.pt or .onnx; default: the demo model)"
+    )
+    cb.add_argument("--rig", default=None, help="the rig (built-in name or RIG.yaml) placing the camera and targets")
+    cb.add_argument(
+        "--targets",
+        type=Path,
+        default=None,
+        help="CSV: start_s,end_s,target (a rig target's name) or start_s,end_s,x_mm,y_mm,z_mm (rig frame)",
+    )
+    cb.add_argument("--camera", type=Path, help="the source's calibration file (as for track)")
+    cb.add_argument("--settle", type=finite_float, default=0.3, help="seconds left out at the start of each look (0.3)")
+    cb.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ex = sub.add_parser("export", help="export a model to ONNX")
     ex.add_argument("model", type=Path)
@@ -296,6 +327,18 @@ def build_parser() -> argparse.ArgumentParser:
         "with truth.csv for `gazeaug track` to score (needs a rig with targets; docs/tracking.md)",
     )
     sm.add_argument("--fps", type=finite_float, default=30.0, help="frame rate of a --sequence (default 30)")
+    sm.add_argument(
+        "--pattern",
+        choices=("targets", "calibration"),
+        default="targets",
+        help="a --sequence's looks: the rig's targets with glances between (default), or a 3 x 3 calibration grid",
+    )
+    sm.add_argument(
+        "--identity-seed",
+        type=_seed,
+        default=None,
+        help="a --sequence's subject from this seed (default --seed): the same person in sequences of other seeds",
+    )
     sm.add_argument("--quiet", action="store_true")
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
@@ -695,6 +738,25 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
+def _model_or_demo(path: Path | None) -> Path:
+    """The model given, or the built-in demo model (with a warning saying what it is)."""
+    import warnings
+
+    from .errors import GazeAugError
+    from .models.train_demo import DEMO_MODEL
+
+    if path is not None:
+        return path
+    if not DEMO_MODEL.is_file():
+        raise GazeAugError(f"no --model given and the built-in demo model is missing ({DEMO_MODEL}); give --model")
+    warnings.warn(
+        "no --model: using the built-in demo model, trained on simulated people for the wheelchair rig "
+        "(a demonstration, not a tracker for real users; docs/tracking.md)",
+        stacklevel=2,
+    )
+    return DEMO_MODEL
+
+
 def _cmd_track(args: argparse.Namespace) -> int:
     from facemesh.camera import load_camera
 
@@ -714,11 +776,51 @@ def _cmd_track(args: argparse.Namespace) -> int:
     )
     rig = load_rig(args.rig) if args.rig is not None else None
     camera = load_camera(args.camera) if args.camera is not None else None
-    estimator = load_estimator(args.model)
+    model = _model_or_demo(args.model)
+    estimator = load_estimator(model)
+    calibration = None
+    if args.calibration is not None:
+        from .calibration import load_calibration, model_digest
+
+        calibration = load_calibration(args.calibration, model_digest(model))
     summary = track(
-        args.source, args.output, estimator, camera=camera, rig=rig, settings=settings, progress=not args.quiet
+        args.source,
+        args.output,
+        estimator,
+        camera=camera,
+        rig=rig,
+        settings=settings,
+        progress=not args.quiet,
+        calibration=calibration,
     )
     print(json.dumps(summary))
+    return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from facemesh.camera import load_camera
+
+    from .calibration import calibrate
+    from .errors import GazeAugError
+    from .estimator import load_estimator
+    from .sampling import load_rig
+
+    if not 0 <= args.settle < 60:
+        raise GazeAugError(f"--settle: expected seconds from 0 to 60, got {args.settle}")
+    rig = load_rig(args.rig) if args.rig is not None else None
+    camera = load_camera(args.camera) if args.camera is not None else None
+    estimator = load_estimator(_model_or_demo(args.model))
+    cal, report = calibrate(
+        args.source,
+        estimator,
+        rig=rig,
+        targets=args.targets,
+        camera=camera,
+        settle_s=args.settle,
+        progress=not args.quiet,
+    )
+    cal.save(args.output)
+    print(json.dumps({**report, "calibration": str(args.output)}))
     return 0
 
 
@@ -747,8 +849,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             faces[0],
             load_rig(args.rig),
             args.output,
-            sequence=SequenceSettings(seconds=args.sequence, fps=args.fps),
+            sequence=SequenceSettings(seconds=args.sequence, fps=args.fps, pattern=args.pattern),
             seed=args.seed,
+            identity_seed=args.identity_seed,
             settings=SimSettings(vary_identity=not args.no_identity_variation),
             overwrite=args.overwrite,
             progress=not args.quiet,
@@ -854,6 +957,7 @@ _COMMANDS = {
     "predict": _cmd_predict,
     "export": _cmd_export,
     "track": _cmd_track,
+    "calibrate": _cmd_calibrate,
     "augment": _cmd_dataset,
     "normalize-dataset": _cmd_dataset,
     "normalize": _cmd_normalize,
@@ -891,6 +995,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_folder(out, what="report folder")
     elif cmd == "track":
         check_output_folder(out, what="output folder")
+    elif cmd == "calibrate":
+        check_output_file(out, (".json",), what="calibration file")
     elif cmd == "simulate":
         check_output_folder(out, what="dataset folder")
 

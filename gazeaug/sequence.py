@@ -48,6 +48,11 @@ from .sampling import Rig
 
 __all__ = ["SequenceSettings", "simulate_sequence", "read_truth", "sequence_accuracy", "TRUTH_COLUMNS"]
 
+#: What a sequence's subject looks at (:class:`SequenceSettings`).
+PATTERNS = ("targets", "calibration")
+#: The calibration pattern's grid over the target box: shares of its x and y extent.
+CALIBRATION_GRID = (0.1, 0.5, 0.9)
+
 #: The columns of ``truth.csv`` (module docstring).
 TRUTH_COLUMNS = (
     "frame",
@@ -90,6 +95,10 @@ class SequenceSettings:
         saccade_s: the move from one point to the next (default 0.05).
         blink_every_s: the time between blinks is uniform in this range (default 2.0-6.0).
         blink_s: a blink's length (default 0.15; the lids close and open again, a triangle in time).
+        pattern: ``targets`` (default: the module docstring's fixations and glances) or ``calibration``
+            (a 3 x 3 grid of points over the rig's ``target_box_mm``, at 10-90 % of its x and y
+            extent and the middle of its z, looked at in reading order, each for ``fixation_s``,
+            repeated until ``seconds``: what ``gazeaug calibrate`` fits a user's correction to).
         head_band_hz: the head moves at frequencies in this band (default 0.05-0.4 Hz), with the rig's
             spreads.
     """
@@ -104,6 +113,7 @@ class SequenceSettings:
     blink_every_s: tuple[float, float] = (2.0, 6.0)
     blink_s: float = 0.15
     head_band_hz: tuple[float, float] = (0.05, 0.4)
+    pattern: str = "targets"
 
     def __post_init__(self) -> None:
         for name in ("seconds", "fps", "saccade_s", "blink_s", "glance_clearance_deg"):
@@ -115,6 +125,8 @@ class SequenceSettings:
             raise GazeAugError(f"sequence: at most 3600 s at 240 fps, got {self.seconds} s at {self.fps} fps")
         for name in ("fixation_s", "glance_s", "blink_every_s", "head_band_hz"):
             object.__setattr__(self, name, _range(f"sequence {name}", getattr(self, name)))
+        if self.pattern not in PATTERNS:
+            raise GazeAugError(f"sequence pattern: expected one of {PATTERNS}, got {self.pattern!r}")
         if not (isinstance(self.glance_share, (int, float)) and 0 <= self.glance_share < 1):
             raise GazeAugError(f"sequence glance_share: expected a number from 0 to below 1, got {self.glance_share!r}")
 
@@ -138,12 +150,24 @@ def _smooth_motion(
     return sd * math.sqrt(2.0 / k) * waves.sum(axis=1)
 
 
-def _schedule(rig: Rig, seq: SequenceSettings, rng: np.random.Generator) -> list[tuple[float, str, str, NDArray[np.float64]]]:
+def _schedule(
+    rig: Rig, seq: SequenceSettings, rng: np.random.Generator
+) -> list[tuple[float, str, str, NDArray[np.float64]]]:
     """Fixations and glances: (start_s, phase, target name or '', point, rig frame mm), covering the sequence."""
     targets = list(rig.targets)
     lo, hi = (np.asarray(c) for c in rig.target_box_mm)
     out: list[tuple[float, str, str, NDArray[np.float64]]] = []
     t, last = 0.0, ""
+    if seq.pattern == "calibration":
+        grid = [
+            np.array([lo[0] + fx * (hi[0] - lo[0]), lo[1] + fy * (hi[1] - lo[1]), (lo[2] + hi[2]) / 2])
+            for fy in CALIBRATION_GRID
+            for fx in CALIBRATION_GRID
+        ]
+        while t < seq.seconds:
+            out.append((t, "fixation", f"p{len(out) % 9 + 1}", grid[len(out) % 9]))
+            t += rng.uniform(*seq.fixation_s)
+        return out
     while t < seq.seconds:
         if out and rng.random() < seq.glance_share:
             for _ in range(200):
@@ -171,6 +195,11 @@ def _schedule(rig: Rig, seq: SequenceSettings, rng: np.random.Generator) -> list
     return out
 
 
+def seq_needs_targets(sequence: SequenceSettings) -> bool:
+    """Whether the pattern looks at the rig's targets (the calibration grid needs none)."""
+    return sequence.pattern == "targets"
+
+
 def simulate_sequence(
     face: Any,
     rig: Rig,
@@ -178,6 +207,7 @@ def simulate_sequence(
     *,
     sequence: SequenceSettings = SequenceSettings(),
     seed: int = 0,
+    identity_seed: int | None = None,
     settings: Any = None,
     overwrite: bool = False,
     progress: bool = True,
@@ -189,7 +219,9 @@ def simulate_sequence(
         rig: a rig with targets (:attr:`Rig.targets`): the camera, the head's motion, what is looked at.
         out_dir: the folder to create (written beside it and swapped in when complete).
         sequence: :class:`SequenceSettings`.
-        seed: everything random derives from it.
+        seed: everything random derives from it, except the subject's identity.
+        identity_seed: the subject's identity (:func:`gazeaug.simulate.draw_subject`) derives from it
+            (default: ``seed``): sequences of one person with other seeds (a calibration, a test).
         settings: :class:`gazeaug.simulate.SimSettings` (default: its defaults).
         overwrite: replace a sequence folder written before.
         progress: a progress bar.
@@ -208,7 +240,7 @@ def simulate_sequence(
     from .pipeline import default_landmark_model, load_input
     from .simulate import PhotoFace, SimSettings, SimSubject, _in_rig_camera, draw_subject
 
-    if not rig.targets:
+    if not rig.targets and seq_needs_targets(sequence):
         raise GazeAugError(f"rig {rig.name!r}: a sequence needs a rig with targets (see data_samples/rigs/)")
     s = settings or SimSettings()
     seq = sequence
@@ -235,7 +267,8 @@ def simulate_sequence(
     w, h = rig.image_size_wh
     with staged_folder(out_dir, overwrite=overwrite, marker="sequence.json") as part:
         photo = PhotoFace.from_image(image, default_landmark_model(), source)
-        subject = SimSubject(photo, "seq", s, draw_subject(s, np.random.default_rng([seed, 0, 10**6])))
+        ident = seed if identity_seed is None else identity_seed
+        subject = SimSubject(photo, "seq", s, draw_subject(s, np.random.default_rng([ident, 0, 10**6])))
         rows, truth, labels = [], [], []
         bar = None
         if progress:
@@ -301,7 +334,11 @@ def simulate_sequence(
         if bar is not None:
             bar.close()
         with atomic_write(part / "truth.csv") as fh:
-            text = ",".join(TRUTH_COLUMNS) + "\n" + "".join(",".join(str(r[c]) for c in TRUTH_COLUMNS) + "\n" for r in rows)
+            text = (
+                ",".join(TRUTH_COLUMNS)
+                + "\n"
+                + "".join(",".join(str(r[c]) for c in TRUTH_COLUMNS) + "\n" for r in rows)
+            )
             fh.write(text.encode("utf-8"))
         write_labels_csv(part / "labels.csv", labels)
         with atomic_write(part / "simulation.jsonl") as fh:
@@ -320,6 +357,7 @@ def simulate_sequence(
             "source_face": source,
             "rig": rig.as_dict(),
             "seed": seed,
+            "identity_seed": ident,
             "sequence": asdict(seq),
             "subject_draw": subject.draw.as_dict(),
             "kappa_deg": np.degrees(subject.kappa_rad).tolist(),

@@ -690,16 +690,27 @@ def _rig_pose(
 
 
 def _in_rig_camera(
-    rig: Rig, yaw_deg: float, pitch_deg: float, head_position_mm: NDArray[np.float64], target_rig_mm: NDArray[np.float64]
+    rig: Rig,
+    yaw_deg: float,
+    pitch_deg: float,
+    head_position_mm: NDArray[np.float64],
+    target_rig_mm: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """A head turned by ``R(yaw, pitch)`` at ``head_position_mm`` and a target, both rig frame, as the rig's
-    camera sees them: (R head -> camera, t mm, target mm), camera frame."""
+    """A head and a target of the rig frame as the rig's camera sees them.
+
+    The head is turned by ``R(yaw, pitch)`` (degrees) at ``head_position_mm``; returns
+    (R head -> camera, t mm, target mm), camera frame.
+    """
     from facemesh.conventions import rig_to_camera_points
 
     r_cam = rig.camera_rotation()
     head_rig = rotation_from_yaw_pitch(math.radians(yaw_deg), math.radians(pitch_deg))
     c = rig.camera_position_mm
-    return r_cam @ head_rig, rig_to_camera_points(head_position_mm, r_cam, c), rig_to_camera_points(target_rig_mm, r_cam, c)
+    return (
+        r_cam @ head_rig,
+        rig_to_camera_points(head_position_mm, r_cam, c),
+        rig_to_camera_points(target_rig_mm, r_cam, c),
+    )
 
 
 def simulate(

@@ -55,7 +55,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -463,10 +463,12 @@ class _FrameGaze:
         settings: TrackSettings,
         timer: _Timer,
         counts: dict[str, int],
+        calibration: Any = None,
     ):
         from facemesh.landmarks.mediapipe import MediaPipeFaceMesh
 
         self.estimator, self.camera, self.rig, self.settings = estimator, camera, rig, settings
+        self.calibration = calibration
         self.timer, self.counts = timer, counts
         self.detector = MediaPipeFaceMesh(static_image_mode=not settings.tracking, max_num_faces=1)
         self.filter = OneEuroFilter(settings.smoothing) if settings.smoothing is not None else None
@@ -478,7 +480,7 @@ class _FrameGaze:
         self._openness: list[tuple[float, float]] = []  # (time, openness) of the recent frames with a face
 
     def _closed(self, t_s: float, openness: float) -> bool:
-        """Are the eyes closed? (:class:`TrackSettings`: relative to the person's recent openness.)"""
+        """Whether the eyes are closed: relative to the person's recent openness (:class:`TrackSettings`)."""
         s = self.settings
         recent = [o for t, o in self._openness if t_s - s.blink_baseline_s <= t <= t_s]
         closed = openness < (s.blink_ratio * float(np.median(recent)) if len(recent) >= 5 else s.blink_openness)
@@ -569,6 +571,9 @@ class _FrameGaze:
         timer.lap("normalize")
         assert sample.face is not None
         pred = self.estimator.predict(sample.left.image[None], sample.right.image[None], sample.face.head_pose[None])[0]
+        row["_model_pitchyaw"], row["_normalized_camera"] = pred, sample.face.camera  # for calibrate (not written)
+        if self.calibration is not None:
+            pred = self.calibration.apply(pred)
         g = sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred))
         raw = np.degrees(vector_to_pitchyaw(g))
         py = self.filter(fr.time_s, raw) if self.filter is not None else raw
@@ -609,6 +614,8 @@ def track(
     rig: Any = None,
     settings: TrackSettings = TrackSettings(),
     progress: bool = True,
+    calibration: Any = None,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
     """Track gaze through ``source`` and write the outputs (module docstring) into ``out_dir``.
 
@@ -622,6 +629,11 @@ def track(
             planes), or None.
         settings: :class:`TrackSettings`.
         progress: print a progress bar to stderr.
+        calibration: a :class:`gazeaug.calibration.Calibration` of this user for this model, applied
+            to the model's output before anything else.
+        on_row: called with each frame's row (what ``gaze.csv`` gets; with a gaze also
+            ``_model_pitchyaw``, the model's (2,) radians before calibration, and
+            ``_normalized_camera``, the frame's :class:`gazeaug.camera.NormalizedCamera`).
 
     Returns:
         The summary: ``frames``, ``frames_with_face``, ``frames_eyes_closed``, ``unreadable_frames``,
@@ -648,7 +660,7 @@ def track(
     counts = dict.fromkeys(
         ("frames", "frames_with_face", "frames_eyes_closed", "unreadable_frames", "failed_frames"), 0
     )
-    work = _FrameGaze(estimator, camera, rig, s, timer, counts)
+    work = _FrameGaze(estimator, camera, rig, s, timer, counts, calibration)
     selections: list[dict[str, Any]] = []
     latencies: list[float] = []
     cam: CameraIntrinsics | None = None
@@ -702,6 +714,8 @@ def track(
             outputs.row(row)
             if truth is not None:
                 kept.append(row)
+            if on_row is not None:
+                on_row(row)
             if fr.bgr is not None and cam is not None and (s.video or window is not None):
                 pic = _overlay(fr.bgr, cam, drawn, row, rig, work.selector, fr.time_s, last_sel)
                 outputs.frame(pic)
@@ -745,6 +759,7 @@ def track(
         "model": str(estimator.path),
         "model_kind": estimator.kind,
         "smoothing": s.smoothing is not None,
+        "calibration": calibration.kind if calibration is not None else None,
         "rig": rig.name if with_rig else None,
         "selections": selections if with_rig else None,
         "outputs": written,

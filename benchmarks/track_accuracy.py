@@ -1,0 +1,108 @@
+"""Point of gaze, selection and calibration on simulated people with exact ground truth.
+
+``python benchmarks/track_accuracy.py --model M.pt [--people 4] [--seconds 20] [-o /tmp/track_acc]``
+
+For each of the first ``--people`` test people of ``benchmarks/people.py`` (none
+of them among any training photos), with the ``wheelchair_objects`` rig:
+
+1. simulates a **calibration sequence** (``--pattern calibration``: a 3 x 3 grid,
+   15 s) and a **test sequence** (the rig's objects with glances between,
+   ``--seconds``) of the same simulated person (same identity seed, other seeds);
+2. fits the person's calibration on the first (``gazeaug calibrate``);
+3. tracks the test sequence without and with it (``gazeaug track``) and scores it
+   against the truth (:func:`gazeaug.sequence.sequence_accuracy`).
+
+Prints one JSON line per person and one with the medians over people: gaze error
+(deg, mm), selection accuracy, false selections per minute, before and after
+calibration, and the correction kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+RIG = ROOT / "data_samples" / "rigs" / "wheelchair_objects.yaml"
+
+
+def main() -> None:
+    """Run it."""
+    import numpy as np
+    from people import other_people  # benchmarks/people.py
+
+    from gazeaug.calibration import calibrate
+    from gazeaug.estimator import load_estimator
+    from gazeaug.sampling import load_rig
+    from gazeaug.sequence import SequenceSettings, simulate_sequence
+    from gazeaug.track import TrackSettings, track
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", type=Path, required=True)
+    ap.add_argument("--people", type=int, default=4)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/track_acc"))
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    rig = load_rig(RIG)
+    est = load_estimator(args.model)
+    people = list(other_people(args.data))[: args.people]
+    rows = []
+    for k, person in enumerate(people):
+        d = args.output / f"person{k:02d}"
+        calib_seq = SequenceSettings(seconds=15.0, pattern="calibration")
+        test_seq = SequenceSettings(seconds=args.seconds)
+        simulate_sequence(
+            person, rig, d / "calib", sequence=calib_seq, seed=100 + k, identity_seed=k, overwrite=True, progress=False
+        )
+        simulate_sequence(
+            person, rig, d / "test", sequence=test_seq, seed=200 + k, identity_seed=k, overwrite=True, progress=False
+        )
+        cal, report = calibrate(d / "calib", est, rig=rig, progress=False)
+        s = TrackSettings(video=False)
+        before = track(d / "test", d / "t0", est, rig=rig, settings=s, progress=False)["accuracy"]
+        after = track(d / "test", d / "t1", est, rig=rig, settings=s, progress=False, calibration=cal)["accuracy"]
+        row = {
+            "person": person.name,
+            "calibration": report["kind"],
+            "calibration_points": report["points"],
+            "before": before,
+            "after": after,
+        }
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+
+    def med(key: str, sub: str | None, when: str) -> float | None:
+        vals = [r[when][key][sub] if sub else r[when][key] for r in rows]
+        vals = [v for v in vals if v is not None]
+        return round(float(np.median(vals)), 2) if vals else None
+
+    print(
+        json.dumps(
+            {
+                "people": len(rows),
+                "model": str(args.model),
+                **{
+                    f"{when}_{name}": med(key, sub, when)
+                    for when in ("before", "after")
+                    for name, key, sub in (
+                        ("median_gaze_error_deg", "gaze_error_deg", "median"),
+                        ("median_gaze_error_mm", "gaze_error_mm", "median"),
+                        ("selection_accuracy", "selection_accuracy", None),
+                        ("false_per_minute", "false_per_minute", None),
+                    )
+                },
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
