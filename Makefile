@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml tools/bootstrap.sh
 
 setup: $(STAMP)
 
-## make demo: the pipeline on the built-in sample: mesh, normalized eyes, augmented eye patches
+## make demo: the pipeline on the built-in sample: mesh, normalized eyes, augmented eye patches, tracking
 demo: $(STAMP)
 	$(VENV)/bin/facemesh build -o $(OUT)/astronaut.glb --preview $(OUT)/astronaut_preview.png
 	$(VENV)/bin/facemesh info $(OUT)/astronaut.glb
@@ -21,7 +21,9 @@ demo: $(STAMP)
 	$(VENV)/bin/gazeaug normalize -o $(OUT)/astronaut_normalized.npz
 	$(VENV)/bin/gazeaug render $(OUT)/astronaut.glb --yaw 0 --pitch 30 -o $(OUT)/astronaut_yaw0_pitch30.npz
 	$(VENV)/bin/gazeaug preview $(OUT)/astronaut.glb -n 16 -o $(OUT)/astronaut_augmented.png
-	@echo "demo: wrote $(OUT)/astronaut.glb, the eye patches (.npz) and the pictures beside them"
+	$(VENV)/bin/gazeaug simulate --sequence 4 --fps 15 --rig data_samples/rigs/wheelchair_objects.yaml -o $(OUT)/sequence --overwrite --quiet
+	$(VENV)/bin/gazeaug track $(OUT)/sequence -o $(OUT)/track --rig data_samples/rigs/wheelchair_objects.yaml --quiet
+	@echo "demo: wrote $(OUT)/astronaut.glb, the eye patches (.npz), the pictures beside them, a simulated gaze sequence and $(OUT)/track/overlay.mp4 (the demo model's gaze on it)"
 
 ## make test: the whole tox suite (tests on every installed Python, lint, type)
 test: $(STAMP)

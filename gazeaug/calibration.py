@@ -293,6 +293,8 @@ def calibrate(
     from .sequence import read_truth
     from .track import TrackSettings, track
 
+    if not (isinstance(settle_s, (int, float)) and math.isfinite(settle_s) and 0 <= settle_s < 60):
+        raise GazeAugError(f"settle: expected seconds from 0 to below 60, got {settle_s!r}")
     looks: list[tuple[float, float, NDArray[np.float64], bool]] = []  # (start, end, point, in camera frame?)
     truth = None
     if targets is not None:

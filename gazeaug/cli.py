@@ -760,6 +760,16 @@ def _model_or_demo(path: Path | None) -> Path:
 def _cmd_track(args: argparse.Namespace) -> int:
     from facemesh.camera import load_camera
 
+    from .errors import GazeAugError
+    from .selection import MAX_MARGIN_DEG
+
+    if not args.dwell > 0:
+        raise GazeAugError(f"--dwell: expected seconds > 0, got {args.dwell}")
+    if not 0 <= args.margin <= MAX_MARGIN_DEG:
+        raise GazeAugError(f"--margin: expected degrees from 0 to {MAX_MARGIN_DEG:g}, got {args.margin}")
+    if args.fps is not None and not 0 < args.fps <= 1000:
+        raise GazeAugError(f"--fps: expected frames per second > 0 and <= 1000, got {args.fps}")
+
     from .estimator import load_estimator
     from .sampling import load_rig
     from .selection import SelectionSettings, SmoothingSettings
@@ -801,12 +811,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from facemesh.camera import load_camera
 
     from .calibration import calibrate
-    from .errors import GazeAugError
     from .estimator import load_estimator
     from .sampling import load_rig
 
-    if not 0 <= args.settle < 60:
-        raise GazeAugError(f"--settle: expected seconds from 0 to 60, got {args.settle}")
     rig = load_rig(args.rig) if args.rig is not None else None
     camera = load_camera(args.camera) if args.camera is not None else None
     estimator = load_estimator(_model_or_demo(args.model))
@@ -839,6 +846,20 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import SimSettings, simulate
 
     faces = list(args.faces) if args.faces else [None]
+    if args.sequence is None:
+        from .errors import GazeAugError
+
+        extra = [
+            o
+            for o, v, d in (
+                ("--fps", args.fps, 30.0),
+                ("--pattern", args.pattern, "targets"),
+                ("--identity-seed", args.identity_seed, None),
+            )
+            if v != d
+        ]
+        if extra:
+            raise GazeAugError(f"{', '.join(extra)}: only with --sequence")
     if args.sequence is not None:
         from .errors import GazeAugError
         from .sequence import SequenceSettings, simulate_sequence

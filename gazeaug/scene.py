@@ -17,7 +17,8 @@ angular margin (gaze estimates are off by degrees): each target is inflated
 by ``distance * tan(margin)`` (the sphere's radius, or every side of the box;
 ``distance`` from the ray's origin to the target's centre), and among the
 inflated targets the ray hits, the one whose centre lies at the smallest angle
-from the ray is looked at. With margin 0 the target is the nearest exact hit.
+from the ray is looked at; a target grown over the ray's origin (the eyes) is
+never looked at. With margin 0 the target is the nearest exact hit.
 """
 
 from __future__ import annotations
@@ -89,6 +90,10 @@ class SphereTarget:
         """Distance along the ray (mm) to the first hit of the ball grown by ``inflate_mm``, or None."""
         return ray_sphere(origin, direction, self.centre, self.radius_mm + inflate_mm)
 
+    def contains(self, point: NDArray[np.float64], inflate_mm: float = 0.0) -> bool:
+        """Whether ``point`` (3,) mm lies inside the ball grown by ``inflate_mm``."""
+        return bool(np.linalg.norm(point - self.centre) < self.radius_mm + inflate_mm)
+
     def as_dict(self) -> dict[str, Any]:
         """The rig-file form."""
         return {"name": self.name, "centre_mm": list(self.centre_mm), "radius_mm": self.radius_mm}
@@ -119,6 +124,11 @@ class BoxTarget:
     def hit(self, origin: NDArray[np.float64], direction: NDArray[np.float64], inflate_mm: float = 0.0) -> float | None:
         """Distance along the ray (mm) to the first hit of the box grown by ``inflate_mm`` on every side, or None."""
         return ray_box(origin, direction, np.asarray(self.min_mm) - inflate_mm, np.asarray(self.max_mm) + inflate_mm)
+
+    def contains(self, point: NDArray[np.float64], inflate_mm: float = 0.0) -> bool:
+        """Whether ``point`` (3,) mm lies inside the box grown by ``inflate_mm`` on every side."""
+        lo, hi = np.asarray(self.min_mm) - inflate_mm, np.asarray(self.max_mm) + inflate_mm
+        return bool(np.all(point > lo) and np.all(point < hi))
 
     def as_dict(self) -> dict[str, Any]:
         """The rig-file form."""
@@ -287,8 +297,9 @@ class Scene:
         for tg in self.targets:
             to_c = tg.centre - o
             dist = float(np.linalg.norm(to_c))
-            if tg.hit(o, d, dist * tan_m) is None:
-                continue
+            grow = dist * tan_m
+            if tg.contains(o, grow) or tg.hit(o, d, grow) is None:
+                continue  # a target grown over the eyes would catch every gaze
             angle = math.acos(max(-1.0, min(1.0, float(to_c @ d) / dist))) if dist > 0 else 0.0
             if margin_deg == 0.0:  # exact: the nearest hit
                 angle = tg.hit(o, d) or 0.0

@@ -31,7 +31,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import GazeAugError
 
-__all__ = ["SmoothingSettings", "OneEuroFilter", "SelectionSettings", "Selection", "DwellSelector"]
+__all__ = ["SmoothingSettings", "OneEuroFilter", "SelectionSettings", "Selection", "DwellSelector", "MAX_MARGIN_DEG"]
+
+#: The largest angular margin of a target: a margin grows each target by ``distance x tan(margin)``,
+#: and beyond some 20 deg nearby targets grow over the face and catch every gaze.
+MAX_MARGIN_DEG = 20.0
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -110,7 +114,8 @@ class SelectionSettings:
     Attributes:
         dwell_s: how long the gaze must stay on a target to select it. Default 0.6 s.
         gap_s: the longest look-away (or blink) that does not end a dwell. Default 0.15 s.
-        margin_deg: the angular margin a target is looked at with (:mod:`gazeaug.scene`). Default 5 deg.
+        margin_deg: the angular margin a target is looked at with (:mod:`gazeaug.scene`). Default 5 deg,
+            at most :data:`MAX_MARGIN_DEG`.
     """
 
     dwell_s: float = 0.6
@@ -121,8 +126,8 @@ class SelectionSettings:
         _positive("dwell_s", self.dwell_s)
         _positive("gap_s", self.gap_s, allow_zero=True)
         m = _positive("margin_deg", self.margin_deg, allow_zero=True)
-        if m >= 45:
-            raise GazeAugError(f"margin_deg: expected below 45 deg, got {m}")
+        if m > MAX_MARGIN_DEG:
+            raise GazeAugError(f"margin_deg: expected at most {MAX_MARGIN_DEG:g} deg, got {m}")
 
 
 @dataclass(frozen=True)

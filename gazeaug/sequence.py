@@ -372,13 +372,24 @@ def read_truth(folder: str | Path) -> list[dict[str, Any]] | None:
     p = Path(folder) / "truth.csv"
     if not (p.is_file() and (Path(folder) / "sequence.json").is_file()):
         return None
-    with open(p, newline="", encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
-    for r in rows:
-        for k in TRUTH_COLUMNS:
-            if k not in ("phase", "target"):
-                r[k] = float(r[k])
-        r["frame"] = int(r["frame"])
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise GazeAugError(f"{p}: not a readable truth file ({exc.__class__.__name__})") from exc
+    for line, r in enumerate(rows, start=2):
+        try:
+            for k in TRUTH_COLUMNS:
+                if k not in ("phase", "target"):
+                    v = float(r[k])
+                    if not math.isfinite(v):
+                        raise ValueError(f"{k} is not finite")
+                    r[k] = v
+            r["frame"] = int(r["frame"])
+            if r["phase"] not in ("fixation", "glance", "saccade"):
+                raise ValueError(f"unknown phase {r['phase']!r}")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise GazeAugError(f"{p}, line {line}: expected the columns {list(TRUTH_COLUMNS)} ({exc})") from exc
     return rows
 
 
@@ -387,6 +398,7 @@ def sequence_accuracy(
     selections: list[dict[str, Any]],
     truth: list[dict[str, Any]],
     dwell_s: float,
+    late_s: float = 0.25,
 ) -> dict[str, Any]:
     """How well ``gazeaug track`` followed a simulated sequence.
 
@@ -395,6 +407,8 @@ def sequence_accuracy(
         selections: the selection events (``frame``, ``target``).
         truth: :func:`read_truth`'s rows.
         dwell_s: the dwell time the selections used.
+        late_s: a selection of the fixated target up to this long after the fixation ended (the
+            gap hysteresis and the smoothing lag) still counts as right.
 
     Returns:
         ``gaze_error_deg`` (median, mean, p90 over the frames with a gaze, during fixations and
@@ -403,7 +417,8 @@ def sequence_accuracy(
         ``fixations`` (on targets long enough to select: longer than ``dwell_s`` plus 0.2 s),
         ``selected_right`` (those during which that target was selected), ``selection_accuracy``
         (the share), ``selections``, ``false_selections`` (a target other than the one fixated, or
-        any during a glance or saccade), ``false_per_minute``, ``precision``.
+        any during a glance or saccade, unless ``late_s`` after fixating it), ``false_per_minute``,
+        ``precision``.
     """
     by_frame = {r["frame"]: r for r in truth}
     errs, errs_mm = [], []
@@ -428,14 +443,19 @@ def sequence_accuracy(
         else:
             runs.append((name, r["frame"], r["frame"]))
     fps = 1.0 / (truth[1]["time_s"] - truth[0]["time_s"]) if len(truth) > 1 else 30.0
+    late = int(round(late_s * fps))
     eligible = [(n, a, b) for n, a, b in runs if n and (b - a + 1) / fps >= dwell_s + 0.2]
     sel_frames = [(int(e["frame"]), str(e["target"])) for e in selections]
-    right = sum(1 for n, a, b in eligible if any(a <= f <= b and t == n for f, t in sel_frames))
-    false = sum(
-        1
-        for f, t in sel_frames
-        if by_frame.get(f) is None or by_frame[f]["phase"] != "fixation" or by_frame[f]["target"] != t
-    )
+    right = sum(1 for n, a, b in eligible if any(a <= f <= b + late and t == n for f, t in sel_frames))
+
+    def fixated(f: int, t: str) -> bool:
+        """Was ``t`` fixated at frame ``f``, or up to ``late`` frames before?"""
+        return any(
+            by_frame.get(g) is not None and by_frame[g]["phase"] == "fixation" and by_frame[g]["target"] == t
+            for g in range(f - late, f + 1)
+        )
+
+    false = sum(1 for f, t in sel_frames if not fixated(f, t))
     minutes = len(truth) / fps / 60.0
     e = np.asarray(errs)
     return {

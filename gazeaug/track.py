@@ -108,6 +108,9 @@ COLUMNS = (
 RIG_COLUMNS = ("pog_x_mm", "pog_y_mm", "pog_z_mm", "surface", "target", "selected")
 #: The timed stages (milliseconds per frame in the summary).
 STAGES = ("decode", "landmarks", "pose", "normalize", "model", "rig", "output")
+#: The files a run writes in its output folder (besides ``summary.json``); an older run's that this
+#: run does not write are removed when it ends.
+OUTPUT_FILES = ("gaze.csv", "selections.csv", "overlay.mp4")
 #: Image files a folder source reads, in name order.
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 #: Consecutive undecodable video frames after which a video is taken to have ended.
@@ -123,7 +126,7 @@ class TrackSettings:
         selection: dwell and margin settings (:class:`SelectionSettings`), used with a rig.
         blink_ratio: eyes are closed (a blink) when their openness (lid gap over width,
             :func:`gazeaug.faces.eye_openness`) falls below this share of the person's own recent
-            openness: the median over the last ``blink_baseline_s`` of frames with a face
+            openness: the median over the last ``blink_baseline_s`` of frames with open eyes
             (default 0.6). Openness differs much between people and with the gaze (lids lower
             when looking down: 0.1-0.15 for a simulated wheelchair user looking at a table, 0.3-0.45
             for a frontal photo), so a fixed threshold flags open eyes of some and misses blinks of others.
@@ -223,20 +226,24 @@ class FrameSource:
         stop = threading.Event()
         end = object()
 
+        def put(item: Any) -> bool:
+            """Queue an item unless the reader has stopped (it then no longer takes any)."""
+            while not stop.is_set():
+                try:
+                    q.put(item, timeout=0.1)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
         def work() -> None:
             try:
                 for fr in self:
-                    while not stop.is_set():
-                        try:
-                            q.put(fr, timeout=0.1)
-                            break
-                        except queue.Full:
-                            continue
-                    if stop.is_set():
+                    if not put(fr):
                         return
-                q.put(end)
+                put(end)
             except BaseException as exc:  # noqa: BLE001 - raised again in the reading thread
-                q.put(exc)
+                put(exc)
 
         t = threading.Thread(target=work, name="track-decode", daemon=True)
         t.start()
@@ -249,7 +256,7 @@ class FrameSource:
                     raise item
                 yield item
         finally:
-            stop.set()
+            stop.set()  # the decoder stops at its next put (within 0.1 s) or frame
             t.join()
 
     def _folder(self) -> Iterator[Frame]:
@@ -265,28 +272,40 @@ class FrameSource:
             yield Frame(i, i / self.fps, np.asarray(bgr, dtype=np.uint8))
 
     def _video(self) -> Iterator[Frame]:
+        """The frames of a video or camera.
+
+        Times increase: a video's from its timestamps (``CAP_PROP_POS_MSEC``), else frame / fps; a
+        camera's since the start. A video frame that does not decode is yielded (image None) only
+        once a later frame decodes: frames that fail after the last good one are the end (a
+        container's frame count is often an overestimate), as are 25 failures in a row.
+        """
         import cv2
 
         cap = self._capture
-        i, bad, start = 0, 0, time.monotonic()
+        i, start, last_t = 0, time.monotonic(), -math.inf
+        pending: list[Frame] = []  # frames that did not decode, waiting for a good one after them
         while True:
             ok, bgr = cap.read()
             if self.kind == "camera":
                 t = time.monotonic() - start
             else:
-                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+                ms = cap.get(cv2.CAP_PROP_POS_MSEC) if ok else 0.0
                 t = ms / 1000.0 if ms and ms > 0 and i > 0 else i / self.fps
+            if not t > last_t:  # a timestamp that went back, or a frame without one: after the last
+                t = last_t + 1.0 / self.fps
+            last_t = t
             if ok and bgr is not None:
-                bad = 0
+                for fr in pending:
+                    self.bad_frames += 1
+                    yield fr
+                pending = []
                 yield Frame(i, t, np.asarray(bgr, dtype=np.uint8))
             else:
-                # the end, a camera gone, or a frame that does not decode: go on while frames remain
-                more = self.kind == "video" and self.frame_count is not None and i < self.frame_count - 1
-                bad += 1
-                if not more or bad > MAX_BAD_FRAMES:
+                if self.kind == "camera" or len(pending) >= MAX_BAD_FRAMES:
+                    return  # a camera that stops delivering, or a video that stopped decoding
+                if self.frame_count is not None and i >= self.frame_count:
                     return
-                self.bad_frames += 1
-                yield Frame(i, i / self.fps, None, "frame could not be decoded")
+                pending.append(Frame(i, t, None, "frame could not be decoded"))
             i += 1
 
     def close(self) -> None:
@@ -365,6 +384,7 @@ class _Outputs:
             self._sel.write("frame,time_s,target,dwell_start_s\n")
         self._video: Any = None
         self._writer: Any = None
+        self._encode_error: str | None = None
         self._closed = False
 
     def open_video(self, size_wh: tuple[int, int], fps: float) -> None:
@@ -398,14 +418,29 @@ class _Outputs:
             self._queue: Any = queue.Queue(maxsize=4)
             self._writer = threading.Thread(target=self._encode, name="track-encode", daemon=True)
             self._writer.start()
-        self._queue.put(bgr)
+        import queue
+
+        while True:
+            if self._encode_error is not None or not self._writer.is_alive():
+                raise GazeAugError(
+                    f"{self.dir}: writing overlay.mp4 failed ({self._encode_error or 'encoder stopped'})"
+                )
+            try:
+                self._queue.put(bgr, timeout=0.5)
+                return
+            except queue.Full:
+                continue
 
     def _encode(self) -> None:
         while True:
             item = self._queue.get()
             if item is None:
                 return
-            self._video.write(item)
+            try:
+                self._video.write(item)
+            except Exception as exc:  # noqa: BLE001 - reported by the next frame() in the main thread
+                self._encode_error = str(exc).splitlines()[0][:200] or exc.__class__.__name__
+                return
 
     def close(self, keep: bool = True) -> dict[str, str]:
         """Close every file and move it in place (``keep``) or delete it.
@@ -419,7 +454,8 @@ class _Outputs:
         if self._sel is not None:
             self._sel.close()
         if self._writer is not None:
-            self._queue.put(None)
+            if self._writer.is_alive():
+                self._queue.put(None)  # the encoder takes frames until this one
             self._writer.join()
         if self._video is not None:
             self._video.release()
@@ -431,6 +467,11 @@ class _Outputs:
                     out[k] = str(self.final[k])
                 else:
                     part.unlink()
+        if keep:  # an older run's outputs that this run did not write would pass for this run's
+            for name in OUTPUT_FILES:
+                stale = self.dir / name
+                if str(stale) not in out.values() and stale.is_file():
+                    stale.unlink()
         return out
 
 
@@ -484,7 +525,9 @@ class _FrameGaze:
         s = self.settings
         recent = [o for t, o in self._openness if t_s - s.blink_baseline_s <= t <= t_s]
         closed = openness < (s.blink_ratio * float(np.median(recent)) if len(recent) >= 5 else s.blink_openness)
-        self._openness = [(t, o) for t, o in self._openness if t >= t_s - s.blink_baseline_s] + [(t_s, openness)]
+        self._openness = [(t, o) for t, o in self._openness if t >= t_s - s.blink_baseline_s]
+        if not closed or len(recent) < 5:  # once it has 5, the baseline takes open eyes only (a long closure
+            self._openness.append((t_s, openness))  # does not lower it); until then every frame counts
         return bool(closed)
 
     def camera_for(self, w: int, h: int) -> CameraIntrinsics:
@@ -765,8 +808,15 @@ def track(
         "outputs": written,
         "interrupted": interrupted,
     }
-    if truth is not None and rig is not None:
-        summary["accuracy"] = sequence_accuracy(kept, selections, truth, s.selection.dwell_s)
+    if truth is not None and rig is not None and kept:
+        last = max(int(r["frame"]) for r in kept)  # the frames tracked (--max-frames, Ctrl-C)
+        summary["accuracy"] = sequence_accuracy(
+            kept,
+            selections,
+            [t for t in truth if t["frame"] <= last],
+            s.selection.dwell_s,
+            late_s=s.selection.gap_s + 0.1,
+        )
     from facemesh.io import atomic_write
 
     with atomic_write(Path(out_dir) / "summary.json") as fh:

@@ -217,3 +217,19 @@ def test_dwell_progress_and_time_order():
 
 
 from pathlib import Path  # noqa: E402
+
+
+def test_margin_never_catches_a_gaze_from_inside_a_grown_target():
+    # a box whose near face is 90 mm ahead, centre (0, 80, -100) at |c| = 128.06 mm: a 20 deg margin grows it
+    # by 128.06 tan 20 = 46.6 mm per side, to y >= 23.4 and z <= -43.4: the eyes stay outside
+    box = BoxTarget("box", (-20.0, 70.0, -110.0), (20.0, 90.0, -90.0))
+    assert not box.contains(ORIGIN, 128.06 * math.tan(math.radians(20)))
+    assert box.contains(np.array([0.0, 30.0, -50.0]), 46.6)
+    # a sphere 60 mm ahead with radius 40 at a 20 deg margin grows to 40 + 60 tan 20 = 61.8 mm > 60: it
+    # would contain the eyes and catch a gaze straight back into the head; it is skipped
+    near = SphereTarget("near", (0.0, 0.0, -60.0), 40.0)
+    assert near.contains(ORIGIN, 60 * math.tan(math.radians(20)))
+    assert Scene((near,)).look(ORIGIN, -FWD, margin_deg=20.0).target is None
+    assert Scene((near,)).look(ORIGIN, FWD, margin_deg=5.0).target == "near"  # 40 + 5.2 mm: not over the eyes
+    with pytest.raises(GazeAugError, match="at most 20"):
+        SelectionSettings(margin_deg=25.0)

@@ -214,3 +214,75 @@ def test_track_bad_input_is_one_line(case, model, video, tmp_path, capsys):
     if case == "bad_rig":
         assert "line 20" in err and "radius_mm" in err
     assert not (out / "gaze.csv").exists()
+
+
+def test_track_without_model_uses_the_demo_model(video, tmp_path, capsys):
+    from gazeaug.models.train_demo import DEMO_CARD, DEMO_MODEL
+
+    assert DEMO_MODEL.is_file() and DEMO_MODEL.stat().st_size < 5_000_000  # shipped, a few MB at most
+    card = json.loads(DEMO_CARD.read_text())
+    assert "simulated" in card["trained_on"] and card["rig"] == "wheelchair"
+    code, stdout, err = _run(["track", video, "-o", tmp_path / "t", "--max-frames", 3, "--quiet", "--no-video"], capsys)
+    assert code == 0, err
+    assert "built-in demo model" in err and "simulated people" in err
+    assert json.loads(stdout.strip().splitlines()[-1])["model"] == str(DEMO_MODEL)
+
+
+def test_track_stops_early_and_replaces_older_outputs(model, faces_dir, tmp_path, capsys):
+    """--max-frames short of a folder's end stops the decoding thread (no hang); a second run without a
+    rig or video leaves no older selections.csv or overlay.mp4 beside its gaze.csv."""
+    import shutil
+    import threading
+
+    src = tmp_path / "frames"
+    src.mkdir()
+    photo = face_photo(faces_dir, "astronaut.png", any_face=True)
+    for i in range(8):
+        shutil.copy(photo, src / f"{i:03d}{photo.suffix}")
+    out = tmp_path / "t"
+    result = {}
+
+    def run(argv):
+        result["code"] = main([str(a) for a in argv])
+
+    t = threading.Thread(
+        target=run, args=(["track", src, "-o", out, "--model", model, "--rig", RIG, "--max-frames", 2, "--quiet"],)
+    )
+    t.start()
+    t.join(120)
+    assert not t.is_alive() and result["code"] == 0
+    assert (out / "selections.csv").is_file() and (out / "overlay.mp4").is_file()
+    assert len(_rows(out / "gaze.csv")) == 2
+    code, _, err = _run(["track", src, "-o", out, "--model", model, "--max-frames", 2, "--quiet", "--no-video"], capsys)
+    assert code == 0, err
+    assert not (out / "selections.csv").exists() and not (out / "overlay.mp4").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--margin", "30"], "--margin"),
+        (["--dwell", "0"], "--dwell"),
+        (["--fps", "0"], "--fps"),
+    ],
+)
+def test_track_option_errors_name_the_option(argv, message, model, video, tmp_path, capsys):
+    code, _, err = _run(["track", video, "-o", tmp_path / "o", "--model", model, "--quiet"] + argv, capsys)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulate_sequence_options_need_sequence(tmp_path, capsys):
+    code, _, err = _run(["simulate", "--pattern", "calibration", "-o", tmp_path / "s"], capsys)
+    assert code == 2 and "only with --sequence" in err
+
+
+def test_track_refuses_a_broken_truth_file(model, faces_dir, tmp_path, capsys):
+    import shutil
+
+    src = tmp_path / "seq"
+    src.mkdir()
+    shutil.copy(face_photo(faces_dir, "astronaut.png", any_face=True), src / "00000.png")
+    (src / "sequence.json").write_text('{"fps": 10}')
+    (src / "truth.csv").write_text("frame,time_s\n0,zero\n")
+    code, _, err = _run(["track", src, "-o", tmp_path / "o", "--model", model, "--rig", RIG, "--quiet"], capsys)
+    assert code == 2 and "truth.csv, line 2" in err
