@@ -238,7 +238,7 @@ def simulate_sequence(
     from .datasets.folder import write_labels_csv
     from .faces import FaceSource
     from .pipeline import default_landmark_model, load_input
-    from .simulate import PhotoFace, SimSettings, SimSubject, _in_rig_camera, draw_subject
+    from .simulate import PhotoFace, SimSettings, SimSubject, _in_rig_camera, draw_subject, label_row
 
     if not rig.targets and seq_needs_targets(sequence):
         raise GazeAugError(f"rig {rig.name!r}: a sequence needs a rig with targets (see data_samples/rigs/)")
@@ -304,31 +304,8 @@ def simulate_sequence(
                 "head_pitch_deg": round(float(head[i, 1]), 4),
             }
             rows.append(row)
-            labels.append(
-                {
-                    "image": fname,
-                    "subject": "seq",
-                    "fx": rig.focal_px,
-                    "fy": rig.focal_px,
-                    "cx": k[0, 2],
-                    "cy": k[1, 2],
-                    "width": w,
-                    "height": h,
-                    **{f"target_{a}": row[f"target_{a}"] for a in "xyz"},
-                }
-            )
-            truth.append(
-                {
-                    "image": fname,
-                    "head_rotation": r.tolist(),
-                    "head_translation_mm": tr.tolist(),
-                    "target_mm": target.tolist(),
-                    "optical_axes": {a: v.tolist() for a, v in frame.optical_axes.items()},
-                    "eyeball_centres_mm": {a: v.tolist() for a, v in frame.eyeball_centres_mm.items()},
-                    "blink": blink,
-                    "light": frame.light,
-                }
-            )
+            labels.append(label_row(fname, "seq", rig, target))
+            truth.append({"image": fname, **frame.truth(), "blink": blink, "light": frame.light})
             if bar is not None:
                 bar.update(1)
         if bar is not None:

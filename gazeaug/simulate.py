@@ -330,6 +330,38 @@ class SimFrame:
     coverage: float
     light: dict[str, Any] | None = None
 
+    def truth(self) -> dict[str, Any]:
+        """The pose, the gaze and the eyes as ``simulation.jsonl`` records them (lists, camera frame)."""
+        return {
+            "head_rotation": self.head_rotation.tolist(),
+            "head_translation_mm": self.head_translation_mm.tolist(),
+            "target_mm": self.target_mm.tolist(),
+            "optical_axes": {a: v.tolist() for a, v in self.optical_axes.items()},
+            "eyeball_centres_mm": {a: v.tolist() for a, v in self.eyeball_centres_mm.items()},
+        }
+
+
+def label_row(image: str, subject: str, rig: Rig, target_mm: NDArray[np.float64]) -> dict[str, Any]:
+    """One ``labels.csv`` row of the folder format for an image the rig's camera took.
+
+    Its intrinsics and the point looked at (camera frame, mm, rounded to 0.1 um).
+    """
+    k = rig.camera().matrix
+    w, h = rig.image_size_wh
+    return {
+        "image": image,
+        "subject": subject,
+        "fx": rig.focal_px,
+        "fy": rig.focal_px,
+        "cx": k[0, 2],
+        "cy": k[1, 2],
+        "width": w,
+        "height": h,
+        "target_x": round(float(target_mm[0]), 4),
+        "target_y": round(float(target_mm[1]), 4),
+        "target_z": round(float(target_mm[2]), 4),
+    }
+
 
 @dataclass(frozen=True)
 class PhotoFace:
@@ -848,31 +880,13 @@ def _simulate_into(
             frame = subj.render(r, t, target, k, (w, h), rng)
             name = f"{subject_id}/{j:05d}.jpg"
             save_image_rgb(out / name, frame.image)
-            rows.append(
-                {
-                    "image": name,
-                    "subject": subject_id,
-                    "fx": rig.focal_px,
-                    "fy": rig.focal_px,
-                    "cx": k[0, 2],
-                    "cy": k[1, 2],
-                    "width": w,
-                    "height": h,
-                    "target_x": round(float(target[0]), 4),
-                    "target_y": round(float(target[1]), 4),
-                    "target_z": round(float(target[2]), 4),
-                }
-            )
+            rows.append(label_row(name, subject_id, rig, target))
             truth.append(
                 {
                     "image": name,
                     "source_face": source,
                     "person": person,
-                    "head_rotation": r.tolist(),
-                    "head_translation_mm": t.tolist(),
-                    "target_mm": target.tolist(),
-                    "optical_axes": {a: v.tolist() for a, v in frame.optical_axes.items()},
-                    "eyeball_centres_mm": {a: v.tolist() for a, v in frame.eyeball_centres_mm.items()},
+                    **frame.truth(),
                     "kappa_deg": np.degrees(subj.kappa_rad).tolist(),
                     "face_coverage": frame.coverage,
                     "subject": subject_id,

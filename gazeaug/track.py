@@ -219,45 +219,9 @@ class FrameSource:
         if self.kind == "camera":
             yield from self
             return
-        import queue
-        import threading
+        from .background import read_ahead
 
-        q: queue.Queue[Any] = queue.Queue(maxsize=depth)
-        stop = threading.Event()
-        end = object()
-
-        def put(item: Any) -> bool:
-            """Queue an item unless the reader has stopped (it then no longer takes any)."""
-            while not stop.is_set():
-                try:
-                    q.put(item, timeout=0.1)
-                    return True
-                except queue.Full:
-                    continue
-            return False
-
-        def work() -> None:
-            try:
-                for fr in self:
-                    if not put(fr):
-                        return
-                put(end)
-            except BaseException as exc:  # noqa: BLE001 - raised again in the reading thread
-                put(exc)
-
-        t = threading.Thread(target=work, name="track-decode", daemon=True)
-        t.start()
-        try:
-            while True:
-                item = q.get()
-                if item is end:
-                    return
-                if isinstance(item, BaseException):
-                    raise item
-                yield item
-        finally:
-            stop.set()  # the decoder stops at its next put (within 0.1 s) or frame
-            t.join()
+        yield from read_ahead(lambda: iter(self), depth, "track-decode")
 
     def _folder(self) -> Iterator[Frame]:
         import cv2

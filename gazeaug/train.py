@@ -23,10 +23,8 @@ import csv
 import io
 import json
 import math
-import queue
-import threading
 import time
-from collections.abc import Generator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -241,16 +239,6 @@ def predict_arrays(
     return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 2))
 
 
-class _Failed:
-    """An exception the reading thread raised, to raise again in the training thread."""
-
-    def __init__(self, exc: BaseException):
-        self.exc = exc
-
-
-_END = object()
-
-
 def prefetch_batches(
     data: H5TrainingSet,
     batch_size: int,
@@ -290,45 +278,14 @@ def prefetch_batches(
             for batch in it:
                 yield batch, tensors(batch)
         return
-    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
-    stop = threading.Event()
+    from .background import read_ahead
 
-    def put(item: Any) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.05)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def work() -> None:
-        it = data.batches(batch_size, rng)
-        try:
+    def produce() -> Iterator[tuple[dict[str, NDArray[Any]], dict[str, Any]]]:
+        with contextlib.closing(data.batches(batch_size, rng)) as it:  # type: ignore[type-var]
             for batch in it:
-                if not put((batch, tensors(batch))):
-                    return
-            put(_END)
-        except BaseException as exc:  # noqa: BLE001 - handed to the training thread, raised there
-            put(_Failed(exc))
-        finally:
-            close = getattr(it, "close", None)
-            if close is not None:
-                close()  # closes the file
+                yield batch, tensors(batch)
 
-    worker = threading.Thread(target=work, name="gazeaug-prefetch", daemon=True)
-    worker.start()
-    try:
-        while True:
-            item = q.get()
-            if item is _END:
-                return
-            if isinstance(item, _Failed):
-                raise item.exc
-            yield item
-    finally:
-        stop.set()
-        worker.join()
+    yield from read_ahead(produce, depth, "gazeaug-prefetch")
 
 
 def train_inputs(
