@@ -9,7 +9,8 @@ head moves:
 
 - ``none``: the identity;
 - ``bias``: ``g' = g + b`` (2 parameters);
-- ``affine``: ``g' = A g + b`` (6 parameters; needs 4 points or more).
+- ``scale``: each angle its own gain and offset, ``A`` diagonal (4 parameters; 3 points or more);
+- ``affine``: ``g' = A g + b`` (6 parameters; 4 points or more).
 
 The samples of each point are reduced to their median (prediction and truth),
 so blinks and the first frames after a saccade weigh little. Which correction is
@@ -48,9 +49,9 @@ __all__ = [
 
 CALIBRATION_FORMAT = "gazeaug-calibration"
 #: The corrections, simplest first (a tie goes to the simpler).
-KINDS = ("none", "bias", "affine")
-#: Points an affine correction needs (it is fitted on one fewer when one is left out).
-MIN_AFFINE_POINTS = 4
+KINDS = ("none", "bias", "scale", "affine")
+#: Points each correction needs (it is fitted on one fewer when one is left out).
+MIN_POINTS = {"none": 2, "bias": 2, "scale": 3, "affine": 4}
 
 
 def model_digest(path: str | Path) -> str:
@@ -76,6 +77,14 @@ def _fit(
         return np.eye(2), np.zeros(2)
     if kind == "bias":
         return np.eye(2), (true - pred).mean(axis=0)
+    if kind == "scale":  # per angle: true = a pred + b, least squares (a = 1 when the predictions do not vary)
+        a, b = np.ones(2), np.zeros(2)
+        for k in range(2):
+            p, t = pred[:, k], true[:, k]
+            var = float(np.var(p))
+            a[k] = float(np.mean((p - p.mean()) * (t - t.mean()))) / var if var > 1e-12 else 1.0
+            b[k] = float(t.mean() - a[k] * p.mean())
+        return np.diag(a), b
     x = np.column_stack([pred, np.ones(len(pred))])
     sol, *_ = np.linalg.lstsq(x, true, rcond=None)  # (3, 2): true = pred @ A.T + b
     return sol[:2].T, sol[2]
@@ -86,7 +95,7 @@ class Calibration:
     """A fitted correction (module docstring).
 
     Attributes:
-        kind: ``none``, ``bias`` or ``affine``.
+        kind: ``none``, ``bias``, ``scale`` or ``affine``.
         matrix: ``A``, 2 x 2 (rows: pitch, yaw), applied to (pitch, yaw) radians.
         offset: ``b``, (pitch, yaw) radians.
         model_sha256: the model file it was fitted for (:func:`model_digest`).
@@ -146,7 +155,7 @@ def fit_calibration(pred: ArrayLike, true: ArrayLike, point: ArrayLike, model_sh
         )
     pp = np.array([np.median(p[ids == k], axis=0) for k in labels])
     tp = np.array([np.median(t[ids == k], axis=0) for k in labels])
-    kinds = [k for k in KINDS if k != "affine" or len(labels) >= MIN_AFFINE_POINTS]
+    kinds = [k for k in KINDS if len(labels) >= MIN_POINTS[k]]
     fitted, left_out = {}, {}
     for kind in kinds:
         a, b = _fit(kind, pp, tp)

@@ -38,17 +38,23 @@ def test_fit_bias_by_hand():
     assert cal.error_deg["left_out"]["bias"] < 1e-6 < cal.error_deg["left_out"]["none"]
 
 
-def test_fit_affine_by_hand():
-    # true = M pred + b with M = diag(1.2, 0.8): only the affine fit is exact left out
+def test_fit_scale_and_affine_by_hand():
+    # true = diag(1.2, 0.8) pred + b: the per-angle gain fits exactly and, as the simpler of the two
+    # exact fits, beats the affine map
     pred = _points(6, seed=1)
     true = pred @ np.diag([1.2, 0.8]).T + [0.02, 0.01]
     cal = fit_calibration(pred, true, np.arange(6), "d")
-    assert cal.kind == "affine"
+    assert cal.kind == "scale"
     np.testing.assert_allclose(cal.matrix, [[1.2, 0.0], [0.0, 0.8]], atol=1e-9)
     np.testing.assert_allclose(cal.offset, [0.02, 0.01], atol=1e-9)
+    # a map that mixes the angles: only the affine fit is exact left out
+    m = np.array([[1.1, 0.2], [-0.1, 0.9]])
+    cal = fit_calibration(pred, pred @ m.T + [0.02, 0.01], np.arange(6), "d")
+    assert cal.kind == "affine"
+    np.testing.assert_allclose(cal.matrix, m, atol=1e-9)
     # with 3 points the affine fit is not tried (it would be fitted on 2 when one is left out)
     cal3 = fit_calibration(pred[:3], true[:3], np.arange(3), "d")
-    assert "affine" not in cal3.error_deg["left_out"]
+    assert "affine" not in cal3.error_deg["left_out"] and "scale" in cal3.error_deg["left_out"]
 
 
 def test_fit_keeps_none_when_nothing_helps():
