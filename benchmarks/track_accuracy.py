@@ -8,6 +8,7 @@ of them among any training photos), with the ``wheelchair_objects`` rig:
 1. simulates a **calibration sequence** (``--pattern calibration``: a 3 x 3 grid,
    15 s) and a **test sequence** (the rig's objects with glances between,
    ``--seconds``) of the same simulated person (same identity seed, other seeds);
+   (kept in ``-o`` and reused by a later run; ``--fresh`` simulates them again);
 2. fits the person's calibration on the first (``gazeaug calibrate``);
 3. tracks the test sequence without and with it (``gazeaug track``) and scores it
    against the truth (:func:`gazeaug.sequence.sequence_accuracy`).
@@ -49,7 +50,12 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/track_acc"))
+    ap.add_argument("--fresh", action="store_true", help="simulate the sequences again even if OUT has them")
     args = ap.parse_args()
+    if args.fresh:
+        import shutil
+
+        shutil.rmtree(args.output, ignore_errors=True)
     warnings.simplefilter("ignore")
     rig = load_rig(RIG)
     est = load_estimator(args.model)
@@ -59,12 +65,11 @@ def main() -> None:
         d = args.output / f"person{k:02d}"
         calib_seq = SequenceSettings(seconds=15.0, pattern="calibration")
         test_seq = SequenceSettings(seconds=args.seconds)
-        simulate_sequence(
-            person, rig, d / "calib", sequence=calib_seq, seed=100 + k, identity_seed=k, overwrite=True, progress=False
-        )
-        simulate_sequence(
-            person, rig, d / "test", sequence=test_seq, seed=200 + k, identity_seed=k, overwrite=True, progress=False
-        )
+        for name, seq, seed in (("calib", calib_seq, 100 + k), ("test", test_seq, 200 + k)):
+            if not (d / name / "sequence.json").is_file():  # simulated once per output folder (--fresh: again)
+                simulate_sequence(
+                    person, rig, d / name, sequence=seq, seed=seed, identity_seed=k, overwrite=True, progress=False
+                )
         cal, report = calibrate(d / "calib", est, rig=rig, progress=False)
         s = TrackSettings(video=False)
         before = track(d / "test", d / "t0", est, rig=rig, settings=s, progress=False)["accuracy"]
