@@ -47,14 +47,27 @@ def test_fit_scale_and_affine_by_hand():
     assert cal.kind == "scale"
     np.testing.assert_allclose(cal.matrix, [[1.2, 0.0], [0.0, 0.8]], atol=1e-9)
     np.testing.assert_allclose(cal.offset, [0.02, 0.01], atol=1e-9)
-    # a map that mixes the angles: only the affine fit is exact left out
+    # a map that mixes the angles: only the affine fit is exact left out (12 points, the least it takes)
+    pred12 = _points(12, seed=4)
     m = np.array([[1.1, 0.2], [-0.1, 0.9]])
-    cal = fit_calibration(pred, pred @ m.T + [0.02, 0.01], np.arange(6), "d")
+    cal = fit_calibration(pred12, pred12 @ m.T + [0.02, 0.01], np.arange(12), "d")
     assert cal.kind == "affine"
     np.testing.assert_allclose(cal.matrix, m, atol=1e-9)
-    # with 3 points the affine fit is not tried (it would be fitted on 2 when one is left out)
-    cal3 = fit_calibration(pred[:3], true[:3], np.arange(3), "d")
-    assert "affine" not in cal3.error_deg["left_out"] and "scale" in cal3.error_deg["left_out"]
+    # with 9 points (the calibration grid) the affine map is not tried; with 2, neither is the gain
+    assert "affine" not in fit_calibration(pred12[:9], pred12[:9], np.arange(9), "d").error_deg["left_out"]
+    cal2 = fit_calibration(pred[:2], true[:2], np.arange(2), "d")
+    assert set(cal2.error_deg["left_out"]) == {"none", "bias"}
+
+
+def test_fit_needs_a_clear_gain():
+    # a bias that lowers the left-out error by under 10 % is not kept: 4 points whose residuals are
+    # (+d, +d, +d, -d) in pitch, d = 0.1 rad. Left out, no correction errs d at each (mean d); the bias
+    # fitted on the other three is d/3 (leaving out a +d point: (2d - d)/3) or d (leaving out -d):
+    # errors |d - d/3| = 2d/3 three times and |-d - d| = 2d once: mean (2d + 2d) / 4 = d: no gain
+    true = _points(4, seed=5)
+    pred = true.copy()
+    pred[:, 0] -= [0.1, 0.1, 0.1, -0.1]
+    assert fit_calibration(pred, true, np.arange(4), "d").kind == "none"
 
 
 def test_fit_keeps_none_when_nothing_helps():
