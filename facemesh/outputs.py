@@ -223,6 +223,8 @@ def staged_folder(
         OutputBusyError: another run is writing ``path``.
     """
     p = Path(path)
+    if not p.name:  # "" or ".": staged beside itself under its real name
+        p = p.resolve()
     check_output_folder(p)
     with output_lock(p):
         if p.is_dir() and any(p.iterdir()):

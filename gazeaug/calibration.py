@@ -57,6 +57,9 @@ KINDS = ("none", "bias", "scale", "affine")
 #: against 16.6 uncorrected) and then made a simulated person's test sequence worse (median
 #: 18.4 -> 20.3 deg; benchmarks/track_accuracy.py with the demo model).
 MIN_POINTS = {"none": 2, "bias": 2, "scale": 3, "affine": 12}
+#: A calibration file's bounds: a gain (matrix entry) up to this, an offset up to this many degrees.
+MAX_GAIN = 5.0
+MAX_OFFSET_DEG = 45.0
 #: A correction with more parameters is kept over a simpler one only when its left-out error is at
 #: least this share lower (fewer points than parameters' worth make the left-out errors noisy).
 MIN_GAIN = 0.10
@@ -205,21 +208,7 @@ def load_calibration(path: str | Path, model_sha256: str | None = None) -> Calib
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug calibration file (no '{CALIBRATION_FORMAT}' format mark)")
     try:
-        a = np.asarray(data["matrix"], dtype=np.float64)
-        b = np.asarray(data["offset"], dtype=np.float64)
-        kind, digest = data["kind"], data["model_sha256"]
-        if a.shape != (2, 2) or b.shape != (2,) or not (np.isfinite(a).all() and np.isfinite(b).all()):
-            raise ValueError("matrix must be 2 x 2 and offset 2 finite numbers")
-        if kind not in KINDS or not isinstance(digest, str):
-            raise ValueError(f"kind must be one of {KINDS}")
-        cal = Calibration(
-            kind=kind,
-            matrix=((float(a[0, 0]), float(a[0, 1])), (float(a[1, 0]), float(a[1, 1]))),
-            offset=(float(b[0]), float(b[1])),
-            model_sha256=digest,
-            points=int(data.get("points", 0)),
-            error_deg=dict(data.get("error_deg", {})),
-        )
+        cal = _from_record(data)
     except (KeyError, TypeError, ValueError) as exc:
         raise GazeAugError(f"{p}: bad calibration values ({exc})") from exc
     if model_sha256 is not None and cal.model_sha256 != model_sha256:
@@ -227,9 +216,51 @@ def load_calibration(path: str | Path, model_sha256: str | None = None) -> Calib
             f"{p}: this calibration was fitted for another model (sha256 {cal.model_sha256[:12]}...); "
             f"the model given is {model_sha256[:12]}...: calibrate again with this model"
         )
-    if abs(math.degrees(float(np.abs(b).max()))) > 90:
-        raise GazeAugError(f"{p}: the offset is over 90 deg; not a calibration to apply")
     return cal
+
+
+def _numbers(value: Any, shape: tuple[int, ...], what: str) -> NDArray[np.float64]:
+    """Finite real numbers (no bools, no text) of one shape."""
+    flat = np.asarray(value, dtype=object).ravel().tolist() if isinstance(value, list) else [value]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in flat):
+        raise ValueError(f"{what}: expected numbers, got {value!r}")
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != shape or not np.isfinite(a).all():
+        raise ValueError(f"{what}: expected {' x '.join(map(str, shape))} finite numbers, got {value!r}")
+    return a
+
+
+def _from_record(data: dict[str, Any]) -> Calibration:
+    """A :class:`Calibration` from a file's record, checked: the version, the kind's form, the bounds."""
+    if data.get("version") != 1:
+        raise ValueError(f"version: expected 1, got {data.get('version')!r}")
+    digest = data["model_sha256"]
+    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
+        raise ValueError(f"model_sha256: expected 64 hexadecimal digits, got {digest!r}")
+    kind = data["kind"]
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+    a = _numbers(data["matrix"], (2, 2), "matrix")
+    b = _numbers(data["offset"], (2,), "offset")
+    form = {
+        "none": np.allclose(a, np.eye(2)) and not b.any(),
+        "bias": np.allclose(a, np.eye(2)),
+        "scale": a[0, 1] == 0 and a[1, 0] == 0,
+        "affine": True,
+    }[kind]
+    if not form:
+        raise ValueError(f"a {kind!r} correction cannot have the matrix {a.tolist()} and offset {b.tolist()}")
+    if not (np.abs(a).max() <= MAX_GAIN and math.degrees(float(np.abs(b).max())) <= MAX_OFFSET_DEG):
+        raise ValueError(f"expected gains up to {MAX_GAIN:g} and offsets up to {MAX_OFFSET_DEG:g} deg")
+    points = data.get("points", 0)
+    return Calibration(
+        kind=kind,
+        matrix=((float(a[0, 0]), float(a[0, 1])), (float(a[1, 0]), float(a[1, 1]))),
+        offset=(float(b[0]), float(b[1])),
+        model_sha256=digest,
+        points=int(points) if isinstance(points, int) and not isinstance(points, bool) else 0,
+        error_deg=dict(data.get("error_deg") or {}) if isinstance(data.get("error_deg"), dict) else {},
+    )
 
 
 def _targets_csv(path: Path, rig: Any) -> list[tuple[float, float, NDArray[np.float64]]]:
@@ -259,6 +290,8 @@ def _targets_csv(path: Path, rig: Any) -> list[tuple[float, float, NDArray[np.fl
                 p = np.array([float(r["x_mm"]), float(r["y_mm"]), float(r["z_mm"])])
             if not (math.isfinite(a) and math.isfinite(b) and a < b and np.isfinite(p).all()):
                 raise ValueError("expected finite start_s < end_s and a finite point")
+            if np.abs(p).max() > 1e5 or np.linalg.norm(p) < 1.0:
+                raise ValueError("expected a point within 100 m of the eyes and not at them")
         except (KeyError, TypeError, ValueError) as exc:
             raise GazeAugError(
                 f"{path}, line {i}: expected start_s,end_s and target (a rig target's name) or x_mm,y_mm,z_mm ({exc})"

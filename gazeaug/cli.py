@@ -761,14 +761,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
     from facemesh.camera import load_camera
 
     from .errors import GazeAugError
-    from .selection import MAX_MARGIN_DEG
+    from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
+    from .track import MAX_FPS, MIN_FPS
 
     if not args.dwell > 0:
         raise GazeAugError(f"--dwell: expected seconds > 0, got {args.dwell}")
     if not 0 <= args.margin <= MAX_MARGIN_DEG:
         raise GazeAugError(f"--margin: expected degrees from 0 to {MAX_MARGIN_DEG:g}, got {args.margin}")
-    if args.fps is not None and not 0 < args.fps <= 1000:
-        raise GazeAugError(f"--fps: expected frames per second > 0 and <= 1000, got {args.fps}")
+    if args.dwell > MAX_DWELL_S:
+        raise GazeAugError(f"--dwell: expected seconds up to {MAX_DWELL_S:g}, got {args.dwell}")
+    if args.fps is not None and not MIN_FPS <= args.fps <= MAX_FPS:
+        raise GazeAugError(f"--fps: expected frames per second from {MIN_FPS:g} to {MAX_FPS:g}, got {args.fps}")
 
     from .estimator import load_estimator
     from .sampling import load_rig

@@ -139,4 +139,11 @@ def _load_onnx(p: Path) -> GazeEstimator:
         ) from exc
     except (ValueError, TypeError, GazeAugError) as exc:
         raise GazeAugError(f"{p}: unusable gazeaug metadata in the ONNX file ({exc})") from exc
+    w, h = norm.patch_size_wh
+    for inp in session.get_inputs():
+        if inp.name in ("left_eye", "right_eye") and list(inp.shape[1:]) != [3, h, w]:
+            raise GazeAugError(
+                f"{p}: the model takes {inp.name} of shape {inp.shape[1:]}, its metadata names {w}x{h} patches "
+                f"(expected [3, {h}, {w}])"
+            )
     return GazeEstimator(p, "onnx", norm, mode, props, session)

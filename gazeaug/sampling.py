@@ -335,7 +335,10 @@ def load_rig(spec: str | Path) -> Rig:
         raise GazeAugError(f"{p}: not valid {p.suffix.lstrip('.').upper() or 'YAML'} ({exc})") from exc
     if not isinstance(data, dict):
         raise GazeAugError(f"{p}: expected a mapping of rig fields, got {type(data).__name__}")
-    lines = _yaml_lines(text) if p.suffix.lower() != ".json" else {}
+    try:
+        lines = _yaml_lines(text) if p.suffix.lower() != ".json" else {}
+    except GazeAugError as exc:
+        raise GazeAugError(f"{p}, {exc}") from exc
 
     def at(key: Any) -> str:
         return f"{p}, line {lines[key]}" if key in lines else str(p)
@@ -389,6 +392,10 @@ def _yaml_lines(text: str) -> dict[Any, int]:
     if isinstance(root, yaml.MappingNode):
         for k, v in root.value:
             key = k.value
+            if key in out:  # YAML keeps the last of a repeated key: a mistake that would pass unseen
+                raise GazeAugError(
+                    f"line {k.start_mark.line + 1}: the field {key!r} is given twice (first on line {out[key]})"
+                )
             out[key] = k.start_mark.line + 1
             if isinstance(v, yaml.SequenceNode):
                 for i, item in enumerate(v.value):

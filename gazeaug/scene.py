@@ -46,23 +46,33 @@ __all__ = [
 
 Vec3 = tuple[float, float, float]
 
+#: Coordinates of a scene lie within this many millimetres of the eyes (100 m).
+MAX_COORD_MM = 1e5
+
 
 def _vec3(value: Any, what: str) -> Vec3:
     try:
         a = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise GazeAugError(f"{what}: expected three numbers (x, y, z) mm, got {value!r}") from exc
-    if a.shape != (3,) or not np.isfinite(a).all():
-        raise GazeAugError(f"{what}: expected three finite numbers (x, y, z) mm, got {value!r}")
+    if a.shape != (3,) or not np.isfinite(a).all() or np.abs(a).max() > MAX_COORD_MM:
+        raise GazeAugError(
+            f"{what}: expected three finite numbers (x, y, z) within +-{MAX_COORD_MM:g} mm, got {value!r}"
+        )
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
 def _name(value: Any, what: str) -> str:
-    if not isinstance(value, str) or not value.strip() or any(c in value for c in ',\n\r"') or len(value) > 100:
+    if not isinstance(value, str) or not value.strip() or any(c in value for c in ",\n\r\"'") or len(value) > 100:
         raise GazeAugError(
             f"{what}: expected a name of 1-100 characters without commas, quotes or line breaks, got {value!r}"
         )
     return value
+
+
+def _not_at_the_eyes(target: Any) -> None:
+    if target.contains(np.zeros(3)):
+        raise GazeAugError(f"target {target.name!r}: it holds the eyes (the rig frame's origin); targets lie in front")
 
 
 @dataclass(frozen=True)
@@ -80,6 +90,7 @@ class SphereTarget:
         if isinstance(r, bool) or not isinstance(r, (int, float, np.integer, np.floating)) or not (0 < r < 1e6):
             raise GazeAugError(f"target {self.name!r}: radius_mm: expected a number > 0 mm, got {r!r}")
         object.__setattr__(self, "radius_mm", float(r))
+        _not_at_the_eyes(self)
 
     @property
     def centre(self) -> NDArray[np.float64]:
@@ -115,6 +126,7 @@ class BoxTarget:
             raise GazeAugError(f"target {self.name!r}: expected min_mm < max_mm on every axis, got {lo} and {hi}")
         object.__setattr__(self, "min_mm", lo)
         object.__setattr__(self, "max_mm", hi)
+        _not_at_the_eyes(self)
 
     @property
     def centre(self) -> NDArray[np.float64]:
@@ -267,6 +279,11 @@ class Scene:
         for p in self.planes:
             if not isinstance(p, Plane):
                 raise GazeAugError(f"planes: expected Plane, got {type(p).__name__}")
+        for t in self.targets:
+            if t.contains(np.zeros(3)):
+                raise GazeAugError(
+                    f"target {t.name!r}: it holds the eyes (the rig frame's origin); targets lie in front"
+                )
         names = [t.name for t in self.targets] + [p.name for p in self.planes]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:

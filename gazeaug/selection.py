@@ -31,11 +31,21 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import GazeAugError
 
-__all__ = ["SmoothingSettings", "OneEuroFilter", "SelectionSettings", "Selection", "DwellSelector", "MAX_MARGIN_DEG"]
+__all__ = [
+    "SmoothingSettings",
+    "OneEuroFilter",
+    "SelectionSettings",
+    "Selection",
+    "DwellSelector",
+    "MAX_MARGIN_DEG",
+    "MAX_DWELL_S",
+]
 
 #: The largest angular margin of a target: a margin grows each target by ``distance x tan(margin)``,
 #: and beyond some 20 deg nearby targets grow over the face and catch every gaze.
 MAX_MARGIN_DEG = 20.0
+#: The longest dwell, seconds.
+MAX_DWELL_S = 60.0
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -123,7 +133,8 @@ class SelectionSettings:
     margin_deg: float = 5.0
 
     def __post_init__(self) -> None:
-        _positive("dwell_s", self.dwell_s)
+        if _positive("dwell_s", self.dwell_s) > MAX_DWELL_S:
+            raise GazeAugError(f"dwell_s: expected at most {MAX_DWELL_S:g} s, got {self.dwell_s}")
         _positive("gap_s", self.gap_s, allow_zero=True)
         m = _positive("margin_deg", self.margin_deg, allow_zero=True)
         if m > MAX_MARGIN_DEG:

@@ -344,8 +344,18 @@ def simulate_sequence(
     return summary
 
 
-def read_truth(folder: str | Path) -> list[dict[str, Any]] | None:
-    """The rows of a sequence folder's ``truth.csv`` (numbers as floats), or None when it has none."""
+def read_truth(folder: str | Path, frames: int | None = None) -> list[dict[str, Any]] | None:
+    """The rows of a sequence folder's ``truth.csv`` (numbers as floats), or None when it has none.
+
+    Args:
+        folder: the sequence folder (``truth.csv`` beside ``sequence.json``).
+        frames: the number of frames the folder holds: ``truth.csv`` must have one row for each,
+            frames 0, 1, ... in order.
+
+    Raises:
+        GazeAugError: an unreadable file, a bad value (naming its line), rows that do not match
+            the frames.
+    """
     p = Path(folder) / "truth.csv"
     if not (p.is_file() and (Path(folder) / "sequence.json").is_file()):
         return None
@@ -365,8 +375,12 @@ def read_truth(folder: str | Path) -> list[dict[str, Any]] | None:
             r["frame"] = int(r["frame"])
             if r["phase"] not in ("fixation", "glance", "saccade"):
                 raise ValueError(f"unknown phase {r['phase']!r}")
+            if r["frame"] != line - 2:
+                raise ValueError(f"frame {r['frame']} where frame {line - 2} was expected")
         except (KeyError, TypeError, ValueError) as exc:
             raise GazeAugError(f"{p}, line {line}: expected the columns {list(TRUTH_COLUMNS)} ({exc})") from exc
+    if not rows or (frames is not None and len(rows) != frames):
+        raise GazeAugError(f"{p}: {len(rows)} rows of truth for {frames if frames is not None else 'some'} frames")
     return rows
 
 
@@ -376,6 +390,7 @@ def sequence_accuracy(
     truth: list[dict[str, Any]],
     dwell_s: float,
     late_s: float = 0.25,
+    targets: set[str] | None = None,
 ) -> dict[str, Any]:
     """How well ``gazeaug track`` followed a simulated sequence.
 
@@ -386,6 +401,8 @@ def sequence_accuracy(
         dwell_s: the dwell time the selections used.
         late_s: a selection of the fixated target up to this long after the fixation ended (the
             gap hysteresis and the smoothing lag) still counts as right.
+        targets: the rig's target names: only fixations on them can be selected (a calibration
+            pattern's points are no targets); default: every fixated name.
 
     Returns:
         ``gaze_error_deg`` (median, mean, p90 over the frames with a gaze, during fixations and
@@ -421,7 +438,9 @@ def sequence_accuracy(
             runs.append((name, r["frame"], r["frame"]))
     fps = 1.0 / (truth[1]["time_s"] - truth[0]["time_s"]) if len(truth) > 1 else 30.0
     late = int(round(late_s * fps))
-    eligible = [(n, a, b) for n, a, b in runs if n and (b - a + 1) / fps >= dwell_s + 0.2]
+    eligible = [
+        (n, a, b) for n, a, b in runs if n and (targets is None or n in targets) and (b - a + 1) / fps >= dwell_s + 0.2
+    ]
     sel_frames = [(int(e["frame"]), str(e["target"])) for e in selections]
     right = sum(1 for n, a, b in eligible if any(a <= f <= b + late and t == n for f, t in sel_frames))
 

@@ -113,6 +113,10 @@ STAGES = ("decode", "landmarks", "pose", "normalize", "model", "rig", "output")
 OUTPUT_FILES = ("gaze.csv", "selections.csv", "overlay.mp4")
 #: Image files a folder source reads, in name order.
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+#: The frame rates a folder of images may have, frames per second.
+MIN_FPS, MAX_FPS = 1.0, 1000.0
+#: The largest camera index taken (``/dev/videoN`` names any device).
+MAX_CAMERA_INDEX = 1024
 #: Consecutive undecodable video frames after which a video is taken to have ended.
 MAX_BAD_FRAMES = 25
 
@@ -165,8 +169,8 @@ class TrackSettings:
         ):
             raise GazeAugError(f"max_frames: expected an integer >= 1, got {self.max_frames!r}")
         f = self.folder_fps
-        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and 0 < f <= 1000):
-            raise GazeAugError(f"folder_fps: expected a number > 0 and <= 1000, got {f!r}")
+        if f is not None and not (isinstance(f, (int, float)) and math.isfinite(f) and MIN_FPS <= f <= MAX_FPS):
+            raise GazeAugError(f"folder_fps: expected a number from {MIN_FPS:g} to {MAX_FPS:g}, got {f!r}")
 
 
 @dataclass(frozen=True)
@@ -227,11 +231,15 @@ class FrameSource:
         import cv2
 
         for i, p in enumerate(self._files):
-            data = np.fromfile(str(p), dtype=np.uint8) if p.is_file() else np.zeros(0, np.uint8)
-            bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+            why = "not a readable image"
+            try:
+                data = np.fromfile(str(p), dtype=np.uint8) if p.is_file() else np.zeros(0, np.uint8)
+                bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+            except (OSError, cv2.error) as exc:  # unreadable, or a header claiming billions of pixels
+                bgr, why = None, f"not a readable image ({str(exc).strip().splitlines()[-1][:120]})"
             if bgr is None:
                 self.bad_frames += 1
-                yield Frame(i, i / self.fps, None, f"{p.name}: not a readable image")
+                yield Frame(i, i / self.fps, None, f"{p.name}: {why}")
                 continue
             yield Frame(i, i / self.fps, np.asarray(bgr, dtype=np.uint8))
 
@@ -293,8 +301,14 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
     import cv2
 
     name = str(spec)
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # FFmpeg's own log lines (a corrupt video's): off
     if _is_camera(name):
-        cap = cv2.VideoCapture(int(name) if name.isdigit() else name)
+        if name.isdigit() and int(name) > MAX_CAMERA_INDEX:
+            raise GazeAugError(f"camera {name}: expected a camera index from 0 to {MAX_CAMERA_INDEX}")
+        try:
+            cap = cv2.VideoCapture(int(name) if name.isdigit() else name)
+        except cv2.error as exc:
+            raise GazeAugError(f"camera {name}: cannot be opened ({str(exc).strip().splitlines()[-1][:120]})") from exc
         if not cap.isOpened():
             raise GazeAugError(f"camera {name}: cannot be opened (is it connected, and free?)")
         fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
@@ -304,7 +318,10 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
         files = sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES and not q.name.startswith("."))
         if not files:
             raise GazeAugError(f"{p}: the folder has no images ({', '.join(IMAGE_SUFFIXES)})")
-        fps = folder_fps or _sequence_fps(p) or 30.0
+        seq_fps = _sequence_fps(p)
+        if folder_fps is not None and seq_fps is not None and abs(folder_fps - seq_fps) > 1e-9:
+            raise GazeAugError(f"{p}: --fps {folder_fps:g} contradicts its sequence.json's fps {seq_fps:g}")
+        fps = folder_fps or seq_fps or 30.0
         return FrameSource(name, "folder", float(fps), len(files), None, None, files)
     if not p.exists():
         raise GazeAugError(f"{p}: no such video, folder or camera")
@@ -320,19 +337,29 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
 
 
 def _sequence_fps(folder: Path) -> float | None:
-    """The ``fps`` of a simulated sequence's ``sequence.json`` in ``folder``, if any."""
+    """The ``fps`` of a simulated sequence's ``sequence.json`` in ``folder``; None without that file.
+
+    Raises:
+        GazeAugError: a ``sequence.json`` that is not JSON or has no usable ``fps``.
+    """
     p = folder / "sequence.json"
-    try:
-        fps = json.loads(p.read_text(encoding="utf-8")).get("fps") if p.is_file() else None
-    except (OSError, ValueError, AttributeError):
+    if not p.is_file():
         return None
-    return float(fps) if isinstance(fps, (int, float)) and 0 < fps <= 1000 else None
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise GazeAugError(f"{p}: not a readable sequence file ({exc.__class__.__name__})") from exc
+    fps = data.get("fps") if isinstance(data, dict) else None
+    if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and MIN_FPS <= fps <= MAX_FPS):
+        raise GazeAugError(f"{p}: fps: expected a number from {MIN_FPS:g} to {MAX_FPS:g}, got {fps!r}")
+    return float(fps)
 
 
 class _Outputs:
     """The output files, written under temporary names and moved in place by :meth:`close`."""
 
-    def __init__(self, out_dir: Path, columns: tuple[str, ...], with_rig: bool):
+    def __init__(self, out_dir: Path, columns: tuple[str, ...], with_rig: bool, source: str):
+        _check_output_folder(out_dir, source)
         out_dir.mkdir(parents=True, exist_ok=True)
         self.dir = out_dir
         self.final: dict[str, Path] = {"gaze": out_dir / "gaze.csv"}
@@ -439,6 +466,35 @@ class _Outputs:
         return out
 
 
+def _check_output_folder(out_dir: Path, source: str) -> None:
+    """Refuse a folder whose files a run would replace or remove but that ``track`` did not write.
+
+    A folder holding any of :data:`OUTPUT_FILES` must also hold a ``summary.json`` that ``track``
+    wrote (the user's own ``gaze.csv`` or video is never replaced), and the source must not be one
+    of the files a run writes.
+    """
+    src = Path(source).resolve() if not _is_camera(source) else None
+    for name in (*OUTPUT_FILES, "summary.json"):
+        if src is not None and (out_dir / name).resolve() == src:
+            raise GazeAugError(
+                f"{source}: the source is one of the files track writes into {out_dir}; choose another -o"
+            )
+    present = [n for n in OUTPUT_FILES if (out_dir / n).exists()]
+    if present and not _written_by_track(out_dir / "summary.json"):
+        raise GazeAugError(
+            f"{out_dir}: holds {', '.join(present)} that gazeaug track did not write (no summary.json of a track run); "
+            "choose an empty or new output folder"
+        )
+
+
+def _written_by_track(path: Path) -> bool:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(data, dict) and data.get("written_by") == "gazeaug track"
+
+
 def _fmt(v: float | None, digits: int) -> str:
     return "" if v is None or not math.isfinite(v) else f"{v:.{digits}f}"
 
@@ -467,14 +523,14 @@ class _FrameGaze:
         rig: Any,
         settings: TrackSettings,
         timer: _Timer,
-        counts: dict[str, int],
         calibration: Any = None,
     ):
         from facemesh.landmarks.mediapipe import MediaPipeFaceMesh
 
         self.estimator, self.camera, self.rig, self.settings = estimator, camera, rig, settings
         self.calibration = calibration
-        self.timer, self.counts = timer, counts
+        self.timer = timer
+        self._size: tuple[int, int] | None = None
         self.detector = MediaPipeFaceMesh(static_image_mode=not settings.tracking, max_num_faces=1)
         self.filter = OneEuroFilter(settings.smoothing) if settings.smoothing is not None else None
         self.selector = DwellSelector(settings.selection)
@@ -529,6 +585,9 @@ class _FrameGaze:
         s, timer = self.settings, self.timer
         row: dict[str, Any] = {"frame": fr.index, "time_s": f"{fr.time_s:.4f}", "face_found": 0}
         image = np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+        if self._size is not None and self._size != (image.shape[0], image.shape[1]):
+            self.detector.close()  # another picture, not the next frame: the track starts afresh
+        self._size = (int(image.shape[0]), int(image.shape[1]))
         faces = self.detector.detect(image)
         timer.lap("landmarks")
         if not faces:
@@ -536,7 +595,6 @@ class _FrameGaze:
             if self.filter is not None:
                 self.filter.reset()
             return row, None
-        self.counts["frames_with_face"] += 1
         row["face_found"] = 1
         face = select_face(faces, None, source=fr.error or "frame")
         model = paired_face_model(face, self.detector, None)
@@ -547,7 +605,6 @@ class _FrameGaze:
                 warnings.simplefilter("ignore")  # a far-off landmark (ReprojectionWarning): per frame, not news
                 pose = solve_head_pose(face.points_px[: model.num_points], model.vertices_mm, cam)
         except FaceMeshError as exc:  # PoseError: the frame is flagged, the run goes on
-            self.counts["failed_frames"] += 1
             row.update(status="failed", note=str(exc).splitlines()[0][:200])
             timer.lap("pose")
             return row, None
@@ -563,7 +620,6 @@ class _FrameGaze:
         )
         drawn = (face, model, pose, refs)
         if openness is not None and self._closed(fr.time_s, openness):
-            self.counts["frames_eyes_closed"] += 1
             row["status"] = "eyes_closed"
             return row, drawn
         try:
@@ -571,7 +627,6 @@ class _FrameGaze:
                 image, cam, pose, model.vertices_mm, model.keypoints, settings=self.estimator.normalization
             )
         except GazeAugError as exc:
-            self.counts["failed_frames"] += 1
             row.update(status="failed", note=str(exc).splitlines()[0][:200])
             timer.lap("normalize")
             return row, drawn
@@ -659,15 +714,19 @@ def track(
     s = settings
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
-    truth = read_truth(src.name) if src.kind == "folder" else None
+    truth = read_truth(src.name, frames=src.frame_count) if src.kind == "folder" else None
     kept: list[dict[str, Any]] = []  # the rows, when a simulated sequence's truth is there to score them
     with_rig = rig is not None
-    outputs = _Outputs(Path(out_dir), COLUMNS + (RIG_COLUMNS if with_rig else ()), with_rig)
+    try:
+        outputs = _Outputs(Path(out_dir), COLUMNS + (RIG_COLUMNS if with_rig else ()), with_rig, str(source))
+    except BaseException:
+        src.close()
+        raise
     timer = _Timer()
     counts = dict.fromkeys(
         ("frames", "frames_with_face", "frames_eyes_closed", "unreadable_frames", "failed_frames"), 0
     )
-    work = _FrameGaze(estimator, camera, rig, s, timer, counts, calibration)
+    work = _FrameGaze(estimator, camera, rig, s, timer, calibration)
     selections: list[dict[str, Any]] = []
     latencies: list[float] = []
     cam: CameraIntrinsics | None = None
@@ -691,10 +750,8 @@ def track(
                 break
             t_read = time.perf_counter()
             timer.lap("decode")
-            counts["frames"] += 1
             drawn = None
             if fr.bgr is None:
-                counts["unreadable_frames"] += 1
                 row: dict[str, Any] = {
                     "frame": fr.index,
                     "time_s": f"{fr.time_s:.4f}",
@@ -719,6 +776,7 @@ def track(
             if row.get("status") == "ok":
                 latencies.append((time.perf_counter() - t_read) * 1000.0)
             outputs.row(row)
+            _count(counts, row)  # counted as written: a frame Ctrl-C cut short is in neither
             if truth is not None:
                 kept.append(row)
             if on_row is not None:
@@ -739,7 +797,7 @@ def track(
     finally:
         if bar is not None:
             bar.close()
-        written = outputs.close()
+        written = outputs.close(keep=counts["frames"] > 0)  # no frame read: an older run's outputs stay
         close = getattr(frames, "close", None)
         if close is not None:
             close()  # stops the decoding thread before the capture is released
@@ -748,10 +806,15 @@ def track(
         _one_torch_thread(estimator, restore=threads)
         if window is not None:
             _close_window()
+    if counts["frames"] == 0:
+        if interrupted:
+            raise KeyboardInterrupt
+        raise GazeAugError(f"{src.name}: no frame could be read (an empty or undecodable video?); nothing written")
     wall = time.perf_counter() - wall0
     n = max(counts["frames"], 1)
     lat = np.asarray(latencies)
     summary: dict[str, Any] = {
+        "written_by": "gazeaug track",
         "source": src.name,
         "kind": src.kind,
         **counts,
@@ -780,6 +843,7 @@ def track(
             [t for t in truth if t["frame"] <= last],
             s.selection.dwell_s,
             late_s=s.selection.gap_s + 0.1,
+            targets={t.name for t in rig.targets},
         )
     from facemesh.io import atomic_write
 
@@ -789,6 +853,18 @@ def track(
     if interrupted:
         raise KeyboardInterrupt
     return summary
+
+
+_STATUS_COUNTS = {"eyes_closed": "frames_eyes_closed", "unreadable": "unreadable_frames", "failed": "failed_frames"}
+
+
+def _count(counts: dict[str, int], row: dict[str, Any]) -> None:
+    """Count one written row in the summary's totals."""
+    counts["frames"] += 1
+    counts["frames_with_face"] += int(row.get("face_found") == 1)
+    key = _STATUS_COUNTS.get(str(row.get("status")))
+    if key is not None:
+        counts[key] += 1
 
 
 def _one_torch_thread(estimator: Any, restore: int | None = None) -> int | None:

@@ -87,14 +87,25 @@ def test_fit_needs_two_points():
 
 
 def test_calibration_file_round_trip_and_refusals(tmp_path):
-    cal = Calibration("bias", ((1.0, 0.0), (0.0, 1.0)), (0.1, -0.2), "abc" * 20, 9, {})
+    cal = Calibration("bias", ((1.0, 0.0), (0.0, 1.0)), (0.1, -0.2), "ab" * 32, 9, {})
     p = cal.save(tmp_path / "u.json")
-    assert load_calibration(p, "abc" * 20) == cal
+    assert load_calibration(p, "ab" * 32) == cal
     with pytest.raises(GazeAugError, match="another model"):
-        load_calibration(p, "def" * 20)
-    (tmp_path / "bad.json").write_text('{"format": "gazeaug-calibration", "kind": "bias", "matrix": [[1]]}')
-    with pytest.raises(GazeAugError, match="bad calibration values"):
-        load_calibration(tmp_path / "bad.json")
+        load_calibration(p, "cd" * 32)
+    good = json.loads(p.read_text())
+    for change, message in [
+        ({"matrix": [[1]]}, "matrix"),
+        ({"kind": "none"}, "'none' correction cannot"),  # an offset under kind none
+        ({"matrix": [[2.0, 0.0], [0.0, 1.0]]}, "'bias' correction cannot"),
+        ({"kind": "affine", "matrix": [[1e300, 0.0], [0.0, 1.0]]}, "gains up to"),
+        ({"offset": [True, False]}, "expected numbers"),
+        ({"offset": [1.0, 0.0]}, "offsets up to"),  # 57 deg
+        ({"version": 2}, "version"),
+        ({"model_sha256": 12345}, "64 hexadecimal"),
+    ]:
+        (tmp_path / "bad.json").write_text(json.dumps({**good, **change}))
+        with pytest.raises(GazeAugError, match=message):
+            load_calibration(tmp_path / "bad.json")
     (tmp_path / "other.json").write_text("[]")
     with pytest.raises(GazeAugError, match="not a gazeaug calibration"):
         load_calibration(tmp_path / "other.json")

@@ -174,7 +174,7 @@ def test_track_ctrl_c_keeps_complete_files(model, video, tmp_path, monkeypatch):
     rows = _rows(out / "gaze.csv")
     assert 6 <= len(rows) < 50 and all(len(r) == len(COLUMNS) and None not in r.values() for r in rows)
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["interrupted"] is True and summary["frames"] == len(rows) + 1
+    assert summary["interrupted"] is True and summary["frames"] == len(rows)  # the frame cut short: in neither
     cap = cv2.VideoCapture(str(out / "overlay.mp4"))
     assert cap.isOpened() and cap.read()[0]
     assert not list(out.glob(".*part*"))
@@ -286,3 +286,33 @@ def test_track_refuses_a_broken_truth_file(model, faces_dir, tmp_path, capsys):
     (src / "truth.csv").write_text("frame,time_s\n0,zero\n")
     code, _, err = _run(["track", src, "-o", tmp_path / "o", "--model", model, "--rig", RIG, "--quiet"], capsys)
     assert code == 2 and "truth.csv, line 2" in err
+
+
+def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, capsys):
+    """A folder holding a user's own gaze.csv or video is refused; the source cannot be an output file;
+    a video without a decodable frame leaves an older run as it was."""
+    import shutil
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "gaze.csv").write_text("my own data\n")
+    code, _, err = _run(["track", video, "-o", mine, "--model", model, "--max-frames", 2, "--quiet"], capsys)
+    assert code == 2 and "did not write" in err and (mine / "gaze.csv").read_text() == "my own data\n"
+    out = tmp_path / "o"
+    out.mkdir()
+    shutil.copy(video, out / "overlay.mp4")
+    code, _, err = _run(["track", out / "overlay.mp4", "-o", out, "--model", model, "--quiet"], capsys)
+    assert code == 2 and "the source is one of the files" in err and (out / "overlay.mp4").stat().st_size > 0
+    # an older run, then a video that opens but decodes nothing
+    run = tmp_path / "run"
+    code, _, err = _run(["track", video, "-o", run, "--model", model, "--max-frames", 2, "--quiet"], capsys)
+    assert code == 0, err
+    before = (run / "gaze.csv").read_bytes()
+    tiny = tmp_path / "tiny.mp4"
+    tiny.write_bytes(Path(video).read_bytes()[:20000])
+    code, _, err = _run(["track", tiny, "-o", run, "--model", model, "--quiet"], capsys)
+    if code == 0:  # some FFmpeg builds decode a frame from 20 kB; then the run is a new, complete one
+        assert json.loads((run / "summary.json").read_text())["frames"] >= 1
+    else:
+        assert code == 2 and "no frame could be read" in err
+        assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
