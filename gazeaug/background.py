@@ -1,17 +1,20 @@
-"""Read ahead in a background thread: the one producer-thread pattern (training batches, video frames).
+"""Long runs' plumbing: reading ahead in a background thread, and Ctrl-C taken between steps.
 
-The work that fills the queue (HDF5 reading, video decoding) releases the GIL, so it overlaps
-the consumer's own work.
+:func:`read_ahead` is the one producer-thread pattern (training batches, video frames): the work
+that fills the queue (HDF5 reading, video decoding) releases the GIL, so it overlaps the
+consumer's own work. :func:`interrupt_between_steps` is the one way a long run (augment,
+normalize-dataset, train, track) takes a Ctrl-C.
 """
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 from collections.abc import Callable, Generator, Iterator
 from typing import Any, TypeVar
 
-__all__ = ["read_ahead"]
+__all__ = ["read_ahead", "interrupt_between_steps"]
 
 T = TypeVar("T")
 
@@ -75,3 +78,36 @@ def read_ahead(
     finally:
         stop.set()
         worker.join()
+
+
+@contextlib.contextmanager
+def interrupt_between_steps() -> Iterator[Callable[[], bool]]:
+    """Turn a first Ctrl-C into a flag the run checks between steps (a second one interrupts at once).
+
+    Python delivers SIGINT as a KeyboardInterrupt wherever the main thread is, and
+    drops it when that is a garbage-collection callback ("Exception ignored ..."): the
+    run would then go on as if nothing was pressed, or hang, when the callback held a
+    lock a reading thread waits for (h5py's: a training run hung so, once in a few
+    dozen Ctrl-Cs). Checked between steps, the interruption is never lost and always
+    leaves a consistent state. Outside the main thread (or when a handler other than
+    Python's default is set), nothing changes.
+    """
+    import signal
+
+    pressed: list[bool] = []
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield lambda: False
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(True)
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(pressed)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)

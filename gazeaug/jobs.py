@@ -17,10 +17,9 @@ columns, wrong calibration) stop the run with a message naming the file.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import __version__
+from .background import interrupt_between_steps
 from .datasets.base import DatasetError, DatasetReader, GazeSample
 from .errors import GazeAugError
 from .io_h5 import H5Writer, Rows, rows_from_samples
@@ -290,39 +290,6 @@ def _take(writer: H5Writer, outcome: SampleOutcome) -> None:
         writer.append_source(outcome.source_index, outcome.before)
 
 
-@contextlib.contextmanager
-def _interrupt_between_samples() -> Iterator[Callable[[], bool]]:
-    """Turn a first Ctrl-C into a flag the run checks between samples (a second one interrupts at once).
-
-    Python delivers SIGINT as a KeyboardInterrupt wherever the main thread is, and
-    drops it when that is a garbage-collection callback ("Exception ignored ..."): the
-    run would then go on as if nothing was pressed. Checked between samples, the
-    interruption is never lost and always leaves a consistent, resumable file.
-    Outside the main thread (or when a handler other than Python's default is set),
-    nothing changes.
-    """
-    import signal
-    import threading
-
-    pressed: list[bool] = []
-    if threading.current_thread() is not threading.main_thread() or (
-        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
-    ):
-        yield lambda: False
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        if pressed:
-            raise KeyboardInterrupt
-        pressed.append(True)
-
-    signal.signal(signal.SIGINT, handler)
-    try:
-        yield lambda: bool(pressed)
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-
 def run_dataset(
     reader: DatasetReader,
     output: str | Path,
@@ -381,7 +348,7 @@ def run_dataset(
         t_first = None
         processed = 0
         try:
-            with _interrupt_between_samples() as interrupted:
+            with interrupt_between_steps() as interrupted:
                 for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
                     _take(writer, outcome)
                     if t_first is None:

@@ -49,6 +49,7 @@ Columns (camera frame: OpenCV, x right, y down, z forward, mm; angles
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -65,6 +66,7 @@ from numpy.typing import NDArray
 
 from facemesh.types import CameraIntrinsics
 
+from .background import interrupt_between_steps
 from .errors import GazeAugError
 from .selection import DwellSelector, OneEuroFilter, SelectionSettings, SmoothingSettings
 
@@ -742,8 +744,12 @@ def track(
     frames = src.prefetched()
     threads = _one_torch_thread(estimator)
     wall0 = time.perf_counter()
+    guard = contextlib.ExitStack()
+    interrupted_now = guard.enter_context(interrupt_between_steps())  # Ctrl-C taken between frames
     try:
         while s.max_frames is None or counts["frames"] < s.max_frames:
+            if interrupted_now():
+                raise KeyboardInterrupt
             timer.start()
             fr = next(frames, None)
             if fr is None:
@@ -795,6 +801,7 @@ def track(
         outputs.close(keep=False)  # a bad input found mid-run: no half-made outputs, older ones stay
         raise
     finally:
+        guard.close()
         if bar is not None:
             bar.close()
         written = outputs.close(keep=counts["frames"] > 0)  # no frame read: an older run's outputs stay

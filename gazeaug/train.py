@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import __version__
+from .background import interrupt_between_steps
 from .errors import GazeAugError
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch
@@ -661,59 +662,62 @@ def _train(
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
     cuda = device.type == "cuda"
-    for epoch in range(start_epoch, n_epochs):
-        rng = np.random.default_rng([s.seed, epoch])
-        gen = augment_generator(s.seed, epoch, device)
-        model.train()
-        t0 = time.perf_counter()
-        losses, preds, gazes, sizes = [], [], [], []
-        with contextlib.closing(prefetch_batches(data, batch_size, rng, depth=PREFETCH, pin=cuda)) as batches:
-            for step, (batch, tensors) in enumerate(batches):
-                n = len(batch["gaze"])
-                a, b, c, y = train_inputs(tensors, device, s.augment, s.input_mode, gen)
-                with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
-                    pred = model(a, b, c)
-                loss = (pred.float() - y).abs().mean()
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                sched.step()
-                losses.append(loss.detach())  # no synchronisation with the device inside the epoch
-                preds.append(pred.detach().float())
-                gazes.append(y.detach())  # the labels the model was given (a mirrored sample's yaw is negated)
-                sizes.append(n)
-                if bar is not None:
-                    bar.update(n)
-                    if step % 20 == 0:
-                        bar.set_postfix(loss=f"{loss.item():.4f}")
-        seen = sum(sizes)
-        step_losses = torch.stack(losses).double().cpu().numpy()
-        train_errors = angular_errors_deg(torch.cat(preds).cpu().numpy(), torch.cat(gazes).double().cpu().numpy())
-        seconds = time.perf_counter() - t0
-        row = {
-            "epoch": epoch + 1,
-            "train_loss": float(np.dot(step_losses, sizes) / seen),
-            "train_error_deg": float(train_errors.mean()),
-            "val_error_deg": _evaluate_set(model, val, 512) if val is not None else None,
-            "seconds": round(seconds, 3),
-            "samples_per_second": round(seen / seconds, 1),
-        }
-        log.append(row)
-        if bar is not None:
-            bar.write(json.dumps(row))
-        _save(
-            {
-                "state_dict": model.state_dict(),
-                "optimizer": opt.state_dict(),
-                "scheduler": sched.state_dict(),
+    with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
+        for epoch in range(start_epoch, n_epochs):
+            rng = np.random.default_rng([s.seed, epoch])
+            gen = augment_generator(s.seed, epoch, device)
+            model.train()
+            t0 = time.perf_counter()
+            losses, preds, gazes, sizes = [], [], [], []
+            with contextlib.closing(prefetch_batches(data, batch_size, rng, depth=PREFETCH, pin=cuda)) as batches:
+                for step, (batch, tensors) in enumerate(batches):
+                    n = len(batch["gaze"])
+                    a, b, c, y = train_inputs(tensors, device, s.augment, s.input_mode, gen)
+                    with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
+                        pred = model(a, b, c)
+                    loss = (pred.float() - y).abs().mean()
+                    opt.zero_grad(set_to_none=True)
+                    loss.backward()
+                    opt.step()
+                    sched.step()
+                    losses.append(loss.detach())  # no synchronisation with the device inside the epoch
+                    preds.append(pred.detach().float())
+                    gazes.append(y.detach())  # the labels the model was given (a mirrored sample's yaw is negated)
+                    sizes.append(n)
+                    if bar is not None:
+                        bar.update(n)
+                        if step % 20 == 0:
+                            bar.set_postfix(loss=f"{loss.item():.4f}")
+                    if interrupted():
+                        raise KeyboardInterrupt
+            seen = sum(sizes)
+            step_losses = torch.stack(losses).double().cpu().numpy()
+            train_errors = angular_errors_deg(torch.cat(preds).cpu().numpy(), torch.cat(gazes).double().cpu().numpy())
+            seconds = time.perf_counter() - t0
+            row = {
                 "epoch": epoch + 1,
-                "settings": asdict(s),
-                "data_selection": selection,
-                "log": log,
-                "torch_rng": torch.get_rng_state(),
-            },
-            ckpt_path,
-        )
+                "train_loss": float(np.dot(step_losses, sizes) / seen),
+                "train_error_deg": float(train_errors.mean()),
+                "val_error_deg": _evaluate_set(model, val, 512) if val is not None else None,
+                "seconds": round(seconds, 3),
+                "samples_per_second": round(seen / seconds, 1),
+            }
+            log.append(row)
+            if bar is not None:
+                bar.write(json.dumps(row))
+            _save(
+                {
+                    "state_dict": model.state_dict(),
+                    "optimizer": opt.state_dict(),
+                    "scheduler": sched.state_dict(),
+                    "epoch": epoch + 1,
+                    "settings": asdict(s),
+                    "data_selection": selection,
+                    "log": log,
+                    "torch_rng": torch.get_rng_state(),
+                },
+                ckpt_path,
+            )
     if bar is not None:
         bar.close()
     _save(
