@@ -982,6 +982,16 @@ def _overlay(
             cv2.putText(
                 pic, tg.name, (int(u) + 4, int(v) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * th, colour, th, cv2.LINE_AA
             )
+        # the targets by name, bottom right (most lie outside a camera that looks up at the face):
+        # yellow the one looked at, green the one just selected
+        y = h - 12
+        for tg in reversed(rig.targets):
+            colour = (0, 200, 255) if tg.name == looked else (200, 200, 200)
+            if last_sel is not None and last_sel[0] == tg.name and t_s - last_sel[1] < 0.5:
+                colour = (0, 220, 0)
+            (tw, _), _ = cv2.getTextSize(tg.name, cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, th)
+            cv2.putText(pic, tg.name, (w - tw - 10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, colour, th, cv2.LINE_AA)
+            y -= int(22 * th)
         if selector.current is not None and status == "ok":
             p = selector.progress(t_s)
             cv2.rectangle(pic, (10, h - 20), (10 + int(150 * p), h - 10), (0, 200, 255), -1)
