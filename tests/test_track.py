@@ -314,5 +314,5 @@ def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, caps
     if code == 0:  # some FFmpeg builds decode a frame from 20 kB; then the run is a new, complete one
         assert json.loads((run / "summary.json").read_text())["frames"] >= 1
     else:
-        assert code == 2 and "no frame could be read" in err
+        assert code == 2 and ("no frame could be read" in err or "cannot be opened as a video" in err)
         assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
