@@ -716,6 +716,8 @@ def track(
     s = settings
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
+    if s.folder_fps is not None and src.kind != "folder":
+        warnings.warn(f"--fps sets a folder's frame rate; the {src.kind}'s own timing is used", stacklevel=2)
     truth = read_truth(src.name, frames=src.frame_count) if src.kind == "folder" else None
     kept: list[dict[str, Any]] = []  # the rows, when a simulated sequence's truth is there to score them
     with_rig = rig is not None

@@ -146,7 +146,7 @@ def test_rig_file_with_targets(tmp_path):
         ("head_yaw_std_deg: 3.0\n", 12, "given twice"),
         ("targets:\n- {name: a, centre_mm: [0, 0, -10], radius_mm: 20}\n", 13, "holds the eyes"),
         ("targets:\n- {name: a, centre_mm: [1.0e+308, 0, -100], radius_mm: 1}\n", 13, "within"),
-        ("targets:\n- {name: \"it's\", centre_mm: [0, 0, -100], radius_mm: 1}\n", 13, "quotes"),
+        ('targets:\n- {name: "it\'s", centre_mm: [0, 0, -100], radius_mm: 1}\n', 13, "quotes"),
     ],
 )
 def test_rig_file_errors_name_the_line(tmp_path, extra, line, message):

@@ -316,3 +316,37 @@ def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, caps
     else:
         assert code == 2 and ("no frame could be read" in err or "cannot be opened as a video" in err)
         assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
+
+
+def test_track_a_camera_that_stops_delivering(model, faces_dir, tmp_path, monkeypatch, capsys):
+    """A camera that delivers frames and then none (unplugged): the run ends, the files complete."""
+    import cv2
+
+    photo = cv2.imread(str(face_photo(faces_dir, "astronaut.png", any_face=True)))
+
+    class Camera:  # OpenCV's VideoCapture as a camera that goes away after 5 frames
+        def __init__(self, index):
+            self.n = 0
+
+        def isOpened(self):
+            return True
+
+        def get(self, prop):
+            return 30.0 if prop == cv2.CAP_PROP_FPS else 0.0
+
+        def read(self):
+            self.n += 1
+            return (True, photo.copy()) if self.n <= 5 else (False, None)
+
+        def release(self):
+            pass
+
+    monkeypatch.setattr(cv2, "VideoCapture", Camera)
+    out = tmp_path / "t"
+    code, stdout, err = _run(["track", "0", "-o", out, "--model", model, "--quiet", "--no-video"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["kind"] == "camera" and summary["frames"] == 5 and summary["unreadable_frames"] == 0
+    assert len(_rows(out / "gaze.csv")) == 5
+    times = [float(r["time_s"]) for r in _rows(out / "gaze.csv")]
+    assert times == sorted(times)
