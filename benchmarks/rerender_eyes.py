@@ -1,6 +1,6 @@
 """Augmentation's re-rendered eye against the truly rendered eye at a new head pose: where the iris lands.
 
-``python benchmarks/rerender_eyes.py [--identities 2]``
+``python benchmarks/rerender_eyes.py [--identities 2] [--no-shape]``
 
 The simulator renders one subject (the built-in astronaut's face, drawn identities,
 the iris painted blue and the sclera green, no relighting, noise or kappa) at a `screen`-like head pose
@@ -71,6 +71,9 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--identities", type=int, default=2)
+    ap.add_argument(
+        "--no-shape", action="store_true", help="identities without shape draws (the built-in face's shape, scale 1)"
+    )
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     det = default_landmark_model()
@@ -85,6 +88,8 @@ def main() -> None:
     for ident in range(args.identities):
         d = draw_subject(s, np.random.default_rng(100 + ident))
         d = dataclasses.replace(d, iris_rgb=(0.0, 0.0, 255.0), glasses=None, kappa_deg=(0.0, 0.0))
+        if args.no_shape:  # the face model PnP uses is then the subject's own shape: the pose is near exact
+            d = dataclasses.replace(d, shape_coefficients=(), head_scale=1.0)
         subj = SimSubject(photo, f"s{ident}", s, d)
         subj.sclera_rgb = (0.0, 255.0, 0.0)  # green, to find the eye opening
         mid = (subj.eye_centre["left"] + subj.eye_centre["right"]) / 2
