@@ -348,12 +348,12 @@ def calibrate(
 
     if not (isinstance(settle_s, (int, float)) and math.isfinite(settle_s) and 0 <= settle_s < 60):
         raise GazeAugError(f"settle: expected seconds from 0 to below 60, got {settle_s!r}")
-    looks: list[tuple[float, float, NDArray[np.float64], bool]] = []  # (start, end, point, in camera frame?)
+    looks: list[tuple[float, float, NDArray[np.float64]]] = []  # (start, end, point rig frame mm)
     truth = None
     if targets is not None:
         if rig is None:
             raise GazeAugError("--targets needs the rig that places them (--rig)")
-        looks = [(a + settle_s, b, p, False) for a, b, p in _targets_csv(Path(targets), rig)]
+        looks = [(a + settle_s, b, p) for a, b, p in _targets_csv(Path(targets), rig)]
     else:
         truth = read_truth(source) if Path(str(source)).is_dir() else None
         if truth is None:
@@ -386,7 +386,7 @@ def calibrate(
                 return
             point_cam = np.array([tr["target_x"], tr["target_y"], tr["target_z"]])
         else:
-            hit = [i for i, (a, b, _, _) in enumerate(looks) if a <= t <= b]
+            hit = [i for i, (a, b, _) in enumerate(looks) if a <= t <= b]
             if not hit:
                 return
             point = looks[hit[0]][2]

@@ -849,9 +849,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import SimSettings, simulate
 
     faces = list(args.faces) if args.faces else [None]
-    if args.sequence is None:
-        from .errors import GazeAugError
+    from .errors import GazeAugError
 
+    if args.sequence is None:
         extra = [
             o
             for o, v, d in (
@@ -863,8 +863,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         ]
         if extra:
             raise GazeAugError(f"{', '.join(extra)}: only with --sequence")
-    if args.sequence is not None:
-        from .errors import GazeAugError
+    else:
         from .sequence import SequenceSettings, simulate_sequence
 
         if len(faces) != 1:

@@ -279,11 +279,6 @@ class Scene:
         for p in self.planes:
             if not isinstance(p, Plane):
                 raise GazeAugError(f"planes: expected Plane, got {type(p).__name__}")
-        for t in self.targets:
-            if t.contains(np.zeros(3)):
-                raise GazeAugError(
-                    f"target {t.name!r}: it holds the eyes (the rig frame's origin); targets lie in front"
-                )
         names = [t.name for t in self.targets] + [p.name for p in self.planes]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
@@ -310,18 +305,20 @@ class Scene:
                 best_t, surface = t, thing.name
         point = o + best_t * d if surface is not None else np.full(3, np.nan)
         tan_m = math.tan(math.radians(margin_deg))
-        target, best_angle = None, math.inf
+        target, best_key = None, math.inf
         for tg in self.targets:
             to_c = tg.centre - o
             dist = float(np.linalg.norm(to_c))
             grow = dist * tan_m
-            if tg.contains(o, grow) or tg.hit(o, d, grow) is None:
-                continue  # a target grown over the eyes would catch every gaze
-            angle = math.acos(max(-1.0, min(1.0, float(to_c @ d) / dist))) if dist > 0 else 0.0
+            t_hit = None if tg.contains(o, grow) else tg.hit(o, d, grow)  # grown over the eyes: catches every gaze
+            if t_hit is None:
+                continue
             if margin_deg == 0.0:  # exact: the nearest hit
-                angle = tg.hit(o, d) or 0.0
-            if angle < best_angle:
-                target, best_angle = tg.name, angle
+                key = t_hit
+            else:  # the smallest angle between the ray and the direction to the centre
+                key = math.acos(max(-1.0, min(1.0, float(to_c @ d) / dist))) if dist > 0 else 0.0
+            if key < best_key:
+                target, best_key = tg.name, key
         return Look(point, surface, target)
 
     def as_dict(self) -> dict[str, Any]:

@@ -34,6 +34,7 @@ the selections: right target, missed fixations, false selections per minute.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -195,11 +196,6 @@ def _schedule(
     return out
 
 
-def seq_needs_targets(sequence: SequenceSettings) -> bool:
-    """Whether the pattern looks at the rig's targets (the calibration grid needs none)."""
-    return sequence.pattern == "targets"
-
-
 def simulate_sequence(
     face: Any,
     rig: Rig,
@@ -236,23 +232,15 @@ def simulate_sequence(
     from facemesh.outputs import staged_folder
 
     from .datasets.folder import write_labels_csv
-    from .faces import FaceSource
-    from .pipeline import default_landmark_model, load_input
-    from .simulate import PhotoFace, SimSettings, SimSubject, _in_rig_camera, draw_subject, label_row
+    from .pipeline import default_landmark_model
+    from .simulate import PhotoFace, SimSettings, SimSubject, _in_rig_camera, draw_subject, face_image, label_row
 
-    if not rig.targets and seq_needs_targets(sequence):
+    if not rig.targets and sequence.pattern == "targets":  # the calibration grid needs none
         raise GazeAugError(f"rig {rig.name!r}: a sequence needs a rig with targets (see data_samples/rigs/)")
     s = settings or SimSettings()
     seq = sequence
     rng = np.random.default_rng([seed, 7])
-    if isinstance(face, FaceSource):
-        image, source = face.image, face.origin
-    else:
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            image, _, source = load_input(face, None)
+    image, source, _ = face_image(face)
     n, dt = seq.frames, 1.0 / seq.fps
     schedule = _schedule(rig, seq, rng)
     times = np.arange(n) * dt
@@ -310,13 +298,12 @@ def simulate_sequence(
                 bar.update(1)
         if bar is not None:
             bar.close()
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=list(TRUTH_COLUMNS), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
         with atomic_write(part / "truth.csv") as fh:
-            text = (
-                ",".join(TRUTH_COLUMNS)
-                + "\n"
-                + "".join(",".join(str(r[c]) for c in TRUTH_COLUMNS) + "\n" for r in rows)
-            )
-            fh.write(text.encode("utf-8"))
+            fh.write(buf.getvalue().encode("utf-8"))
         write_labels_csv(part / "labels.csv", labels)
         with atomic_write(part / "simulation.jsonl") as fh:
             fh.write("".join(json.dumps(t) + "\n" for t in truth).encode("utf-8"))

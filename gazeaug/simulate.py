@@ -709,6 +709,25 @@ class SimSubject:
         )
 
 
+def face_image(face: Any) -> tuple[NDArray[np.uint8], str, str]:
+    """A simulated subject's face: (image (H, W, 3) uint8 RGB, source name, person).
+
+    ``face``: a photo's path, a :class:`gazeaug.faces.FaceSource` (a crop of a picture or a video
+    frame, with its person), or None (the built-in astronaut). A photo's person is its file stem.
+    """
+    import warnings
+
+    from .faces import FaceSource
+    from .pipeline import load_input
+
+    if isinstance(face, FaceSource):
+        return face.image, face.origin, face.person or face.name
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the default-camera warning: the simulator sets its own camera
+        image, _, source = load_input(face, None)
+    return image, source, Path(str(source)).stem
+
+
 def _rig_pose(
     rig: Rig, rng: np.random.Generator
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -842,7 +861,7 @@ def _simulate_into(
     from facemesh.io import atomic_write, save_image_rgb
 
     from .datasets.folder import write_labels_csv
-    from .pipeline import default_landmark_model, load_input
+    from .pipeline import default_landmark_model
 
     s = settings
     detector = default_landmark_model()
@@ -854,18 +873,8 @@ def _simulate_into(
         from tqdm import tqdm
 
         bar = tqdm(total=len(faces) * per_face, unit="image", desc="simulate", dynamic_ncols=True)
-    from .faces import FaceSource
-
     for i, face in enumerate(faces):
-        if isinstance(face, FaceSource):
-            image, source, person = face.image, face.origin, face.person or face.name
-        else:
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                image, _, source = load_input(face, None)
-            person = Path(str(source)).stem
+        image, source, person = face_image(face)
         photo = PhotoFace.from_image(image, detector, source)
         subjects = []
         for kk in range(identities):

@@ -56,7 +56,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -198,24 +198,21 @@ class FrameSource:
         kind: ``video``, ``folder`` or ``camera``.
         fps: frames per second (a camera's as it reports it; 30 when it does not say).
         frame_count: frames in a video or folder (None for a camera, or a video that does not say).
-        size_wh: (width, height) of the frames, when known before reading.
     """
 
     name: str
     kind: str
     fps: float
     frame_count: int | None
-    size_wh: tuple[int, int] | None
     _capture: Any = None
     _files: list[Path] = field(default_factory=list)
-    bad_frames: int = 0
 
     def __iter__(self) -> Iterator[Frame]:
         if self.kind == "folder":
             return self._folder()
         return self._video()
 
-    def prefetched(self, depth: int = 4) -> Iterator[Frame]:
+    def prefetched(self, depth: int = 4) -> Generator[Frame, None, None]:
         """The frames, decoded ``depth`` ahead in a background thread.
 
         OpenCV decodes without holding the GIL, so decoding overlaps the work on the previous
@@ -240,7 +237,6 @@ class FrameSource:
             except (OSError, cv2.error) as exc:  # unreadable, or a header claiming billions of pixels
                 bgr, why = None, f"not a readable image ({str(exc).strip().splitlines()[-1][:120]})"
             if bgr is None:
-                self.bad_frames += 1
                 yield Frame(i, i / self.fps, None, f"{p.name}: {why}")
                 continue
             yield Frame(i, i / self.fps, np.asarray(bgr, dtype=np.uint8))
@@ -269,9 +265,7 @@ class FrameSource:
                 t = last_t + 1.0 / self.fps
             last_t = t
             if ok and bgr is not None:
-                for fr in pending:
-                    self.bad_frames += 1
-                    yield fr
+                yield from pending
                 pending = []
                 yield Frame(i, t, np.asarray(bgr, dtype=np.uint8))
             else:
@@ -314,7 +308,7 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
         if not cap.isOpened():
             raise GazeAugError(f"camera {name}: cannot be opened (is it connected, and free?)")
         fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-        return FrameSource(name, "camera", float(fps), None, None, cap)
+        return FrameSource(name, "camera", float(fps), None, cap)
     p = Path(name)
     if p.is_dir():
         files = sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES and not q.name.startswith("."))
@@ -324,7 +318,7 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
         if folder_fps is not None and seq_fps is not None and abs(folder_fps - seq_fps) > 1e-9:
             raise GazeAugError(f"{p}: --fps {folder_fps:g} contradicts its sequence.json's fps {seq_fps:g}")
         fps = folder_fps or seq_fps or 30.0
-        return FrameSource(name, "folder", float(fps), len(files), None, None, files)
+        return FrameSource(name, "folder", float(fps), len(files), None, files)
     if not p.exists():
         raise GazeAugError(f"{p}: no such video, folder or camera")
     cap = cv2.VideoCapture(str(p))
@@ -332,10 +326,9 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
         cap.release()
         raise GazeAugError(f"{p}: cannot be opened as a video")
     fps = cap.get(cv2.CAP_PROP_FPS)
-    fps = float(fps) if fps and math.isfinite(fps) and 0 < fps <= 1000 else 30.0
+    fps = float(fps) if fps and math.isfinite(fps) and 0 < fps <= MAX_FPS else 30.0
     count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
-    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
-    return FrameSource(name, "video", fps, count, size, cap)
+    return FrameSource(name, "video", fps, count, cap)
 
 
 def _sequence_fps(folder: Path) -> float | None:
@@ -571,8 +564,10 @@ class _FrameGaze:
                 self._cams[(w, h)] = camera_for_image(None, w, h, warn=not self._cams)
         return self._cams[(w, h)]
 
-    def __call__(self, fr: Frame, bgr: NDArray[np.uint8], cam: CameraIntrinsics) -> tuple[dict[str, Any], Any]:
-        """One decoded frame -> (its row, what the overlay draws: (face, model, pose, refs) or None)."""
+    def __call__(
+        self, fr: Frame, bgr: NDArray[np.uint8], cam: CameraIntrinsics
+    ) -> tuple[dict[str, Any], tuple[NDArray[np.float64], NDArray[np.float64]] | None]:
+        """One decoded frame -> (its row, what the overlay draws: (landmarks px, gaze origin mm) or None)."""
         import cv2
 
         from facemesh.conventions import pitchyaw_to_vector, rotation_to_head_pitchyaw, vector_to_pitchyaw
@@ -598,7 +593,7 @@ class _FrameGaze:
                 self.filter.reset()
             return row, None
         row["face_found"] = 1
-        face = select_face(faces, None, source=fr.error or "frame")
+        face = select_face(faces, None, source=f"frame {fr.index}")
         model = paired_face_model(face, self.detector, None)
         openness = eye_openness(face.points_px)
         row["openness"] = _fmt(openness, 3)
@@ -620,7 +615,7 @@ class _FrameGaze:
             **{f"eye_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", eye_mid)},
             **{f"origin_{a}_mm": _fmt(v, 2) for a, v in zip("xyz", refs["face"])},
         )
-        drawn = (face, model, pose, refs)
+        drawn = (face.points_px, refs["face"])  # what the overlay draws
         if openness is not None and self._closed(fr.time_s, openness):
             row["status"] = "eyes_closed"
             return row, drawn
@@ -743,11 +738,12 @@ def track(
         total = src.frame_count if s.max_frames is None else min(src.frame_count or s.max_frames, s.max_frames)
         bar = tqdm(total=total, unit="frame", desc="track", dynamic_ncols=True)
     last_sel: tuple[str, float] | None = None
+    marks: dict[tuple[int, int], list[tuple[str, tuple[int, int], int]]] = {}  # per frame size: _target_marks
     frames = src.prefetched()
-    threads = _one_torch_thread(estimator)
-    wall0 = time.perf_counter()
     guard = contextlib.ExitStack()
+    guard.enter_context(_one_torch_thread(estimator))
     interrupted_now = guard.enter_context(interrupt_between_steps())  # Ctrl-C taken between frames
+    wall0 = time.perf_counter()
     try:
         while s.max_frames is None or counts["frames"] < s.max_frames:
             if interrupted_now():
@@ -790,7 +786,11 @@ def track(
             if on_row is not None:
                 on_row(row)
             if fr.bgr is not None and cam is not None and (s.video or window is not None):
-                pic = _overlay(fr.bgr, cam, drawn, row, rig, work.selector, fr.time_s, last_sel)
+                if rig is not None and cam.image_size not in marks:
+                    marks[cam.image_size] = _target_marks(rig, cam)
+                pic = _overlay(
+                    fr.bgr, cam, drawn, row, rig, marks.get(cam.image_size, []), work.selector, fr.time_s, last_sel
+                )
                 outputs.frame(pic)
                 if window is not None and not _show(window, pic):
                     break
@@ -807,12 +807,9 @@ def track(
         if bar is not None:
             bar.close()
         written = outputs.close(keep=counts["frames"] > 0)  # no frame read: an older run's outputs stay
-        close = getattr(frames, "close", None)
-        if close is not None:
-            close()  # stops the decoding thread before the capture is released
+        frames.close()  # stops the decoding thread before the capture is released
         src.close()
         work.detector.close()
-        _one_torch_thread(estimator, restore=threads)
         if window is not None:
             _close_window()
     if counts["frames"] == 0:
@@ -820,7 +817,7 @@ def track(
             raise KeyboardInterrupt
         raise GazeAugError(f"{src.name}: no frame could be read (an empty or undecodable video?); nothing written")
     wall = time.perf_counter() - wall0
-    n = max(counts["frames"], 1)
+    n = counts["frames"]
     lat = np.asarray(latencies)
     summary: dict[str, Any] = {
         "written_by": "gazeaug track",
@@ -876,23 +873,25 @@ def _count(counts: dict[str, int], row: dict[str, Any]) -> None:
         counts[key] += 1
 
 
-def _one_torch_thread(estimator: Any, restore: int | None = None) -> int | None:
-    """Set PyTorch to one thread (returning the count to restore), or restore it.
+@contextlib.contextmanager
+def _one_torch_thread(estimator: Any) -> Iterator[None]:
+    """PyTorch on one thread while the block runs (a PyTorch estimator only), then as it was.
 
     A PyTorch model on one sample per frame runs fastest on one thread: 1.1 ms against 3.2 ms with
     two threads competing with MediaPipe's.
     """
     if getattr(estimator, "kind", None) != "pytorch":
-        return None
+        yield
+        return
     from .models import import_torch
 
     torch = import_torch()
     before = int(torch.get_num_threads())
-    if restore is not None:
-        torch.set_num_threads(restore)
-    else:
-        torch.set_num_threads(1)
-    return before
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 _WINDOW = "gazeaug track"
@@ -930,20 +929,61 @@ def _close_window() -> None:
         pass
 
 
+def _target_marks(rig: Any, cam: CameraIntrinsics) -> list[tuple[str, tuple[int, int], int]]:
+    """Where the rig camera's image shows each target: (name, centre px, radius px), for the targets in view.
+
+    Fixed for a run (the rig's camera does not move): computed once per camera, not per frame.
+    """
+    from facemesh.conventions import rig_to_camera_points
+    from facemesh.pose import project_points
+
+    h, w = cam.image_size[1], cam.image_size[0]
+    r, c = rig.camera_rotation(), np.asarray(rig.camera_position_mm)
+    marks = []
+    for tg in rig.targets:
+        centre = rig_to_camera_points(tg.centre, r, c)
+        if centre[2] <= 1:
+            continue
+        u, v = project_points(centre[None], cam)[0]
+        if not (np.isfinite(u) and np.isfinite(v) and abs(u) < 4 * w and abs(v) < 4 * h):
+            continue
+        rad = 0.0
+        if hasattr(tg, "radius_mm"):
+            rad = tg.radius_mm * cam.matrix[0, 0] / centre[2]
+        else:
+            corners = np.array(
+                [
+                    [x, y, z]
+                    for x in (tg.min_mm[0], tg.max_mm[0])
+                    for y in (tg.min_mm[1], tg.max_mm[1])
+                    for z in (tg.min_mm[2], tg.max_mm[2])
+                ]
+            )
+            pc = rig_to_camera_points(corners, r, c)
+            if (pc[:, 2] > 1).all():
+                rad = float(np.max(np.linalg.norm(project_points(pc, cam) - [u, v], axis=1)))
+        marks.append((tg.name, (int(round(u)), int(round(v))), max(3, int(round(min(rad, 2 * w))))))
+    return marks
+
+
 def _overlay(
     bgr: NDArray[np.uint8],
     cam: CameraIntrinsics,
-    fit: Any,
+    drawn: tuple[NDArray[np.float64], NDArray[np.float64]] | None,
     row: dict[str, Any],
     rig: Any,
+    marks: list[tuple[str, tuple[int, int], int]],
     selector: DwellSelector,
     t_s: float,
     last_sel: tuple[str, float] | None,
 ) -> NDArray[np.uint8]:
-    """The frame (BGR, for the video) with the face box, the gaze arrow, the targets and the dwell."""
+    """The frame (BGR, for the video) with the face box, the gaze arrow, the targets and the dwell.
+
+    ``drawn``: the face's landmarks (N, 2) px and the gaze origin (3,) mm, camera frame; ``marks``:
+    :func:`_target_marks` for this camera.
+    """
     import cv2
 
-    from facemesh.conventions import rig_to_camera_points
     from facemesh.pose import project_points
 
     pic = bgr  # drawn on in place: the decoded frame is not used after this
@@ -951,48 +991,24 @@ def _overlay(
     th = max(1, w // 500)
     status = row.get("status", "")
     if rig is not None:
-        r, c = rig.camera_rotation(), np.asarray(rig.camera_position_mm)
         looked = row.get("target") or None
-        for tg in rig.targets:
-            colour = (0, 200, 255) if tg.name == looked else (200, 200, 200)
-            if last_sel is not None and last_sel[0] == tg.name and t_s - last_sel[1] < 0.5:
-                colour = (0, 220, 0)
-            centre = rig_to_camera_points(tg.centre, r, c)
-            if centre[2] <= 1:
-                continue
-            (u, v), rad = project_points(centre[None], cam)[0], 0.0
-            if hasattr(tg, "radius_mm"):
-                rad = tg.radius_mm * cam.matrix[0, 0] / centre[2]
-            else:
-                corners = np.array(
-                    [
-                        [x, y, z]
-                        for x in (tg.min_mm[0], tg.max_mm[0])
-                        for y in (tg.min_mm[1], tg.max_mm[1])
-                        for z in (tg.min_mm[2], tg.max_mm[2])
-                    ]
-                )
-                pc = rig_to_camera_points(corners, r, c)
-                if (pc[:, 2] > 1).all():
-                    px = project_points(pc, cam)
-                    rad = float(np.max(np.linalg.norm(px - [u, v], axis=1)))
-            if not (np.isfinite(u) and np.isfinite(v) and abs(u) < 4 * w and abs(v) < 4 * h):
-                continue
-            cv2.circle(
-                pic, (int(round(u)), int(round(v))), max(3, int(round(min(rad, 2 * w)))), colour, th, cv2.LINE_AA
-            )
-            cv2.putText(
-                pic, tg.name, (int(u) + 4, int(v) - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * th, colour, th, cv2.LINE_AA
-            )
-        # the targets by name, bottom right (most lie outside a camera that looks up at the face):
-        # yellow the one looked at, green the one just selected
+
+        def colour(name: str) -> tuple[int, int, int]:
+            """Green: just selected; yellow: looked at; else grey."""
+            if last_sel is not None and last_sel[0] == name and t_s - last_sel[1] < 0.5:
+                return (0, 220, 0)
+            return (0, 200, 255) if name == looked else (200, 200, 200)
+
+        for name, (u, v), rad in marks:
+            cv2.circle(pic, (u, v), rad, colour(name), th, cv2.LINE_AA)
+            cv2.putText(pic, name, (u + 4, v - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * th, colour(name), th, cv2.LINE_AA)
+        # the targets by name, bottom right (most lie outside a camera that looks up at the face)
         y = h - 12
         for tg in reversed(rig.targets):
-            colour = (0, 200, 255) if tg.name == looked else (200, 200, 200)
-            if last_sel is not None and last_sel[0] == tg.name and t_s - last_sel[1] < 0.5:
-                colour = (0, 220, 0)
             (tw, _), _ = cv2.getTextSize(tg.name, cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, th)
-            cv2.putText(pic, tg.name, (w - tw - 10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, colour, th, cv2.LINE_AA)
+            cv2.putText(
+                pic, tg.name, (w - tw - 10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, colour(tg.name), th, cv2.LINE_AA
+            )
             y -= int(22 * th)
         if selector.current is not None and status == "ok":
             p = selector.progress(t_s)
@@ -1009,15 +1025,14 @@ def _overlay(
                 th,
                 cv2.LINE_AA,
             )
-    if fit is not None:
-        face, _model, _pose, refs = fit
-        x0, y0 = face.points_px.min(axis=0)
-        x1, y1 = face.points_px.max(axis=0)
+    if drawn is not None:
+        points_px, origin = drawn
+        x0, y0 = points_px.min(axis=0)
+        x1, y1 = points_px.max(axis=0)
         cv2.rectangle(pic, (int(x0), int(y0)), (int(x1), int(y1)), (255, 200, 0), th)
         if status == "ok":
             g = np.array([float(row["gaze_x"]), float(row["gaze_y"]), float(row["gaze_z"])])
-            o = refs["face"]
-            a, b = project_points(np.stack([o, o + 150.0 * g]), cam)
+            a, b = project_points(np.stack([origin, origin + 150.0 * g]), cam)
             if np.isfinite(a).all() and np.isfinite(b).all():
                 cv2.arrowedLine(
                     pic,
