@@ -355,6 +355,8 @@ def calibrate(
             raise GazeAugError("--targets needs the rig that places them (--rig)")
         looks = [(a + settle_s, b, p) for a, b, p in _targets_csv(Path(targets), rig)]
     else:
+        if not Path(str(source)).exists():
+            raise GazeAugError(f"{source}: no such folder (a simulated sequence) or video")
         truth = read_truth(source) if Path(str(source)).is_dir() else None
         if truth is None:
             raise GazeAugError(

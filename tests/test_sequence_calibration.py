@@ -231,7 +231,8 @@ def test_track_scores_a_sequence_and_calibrate(model, sequence, tmp_path, capsys
         + ["--calibration", str(tmp_path / "u.json"), "--no-video"]
     )
     out, err = capsys.readouterr()
-    assert code == 0, err and json.loads(out.strip().splitlines()[-1])["calibration"] == report["kind"]
+    assert code == 0, err
+    assert json.loads(out.strip().splitlines()[-1])["calibration"] == report["kind"]
     other = tmp_path / "other.pt"
     other.write_bytes(model.read_bytes() + b"\0")
     code = main(
@@ -263,6 +264,9 @@ def test_calibrate_needs_truth(model, tmp_path, capsys):
     code = main(["calibrate", str(folder), "--model", str(model), "-o", str(tmp_path / "u.json"), "--quiet"])
     _, err = capsys.readouterr()
     assert code == 2 and "--targets" in err and not (tmp_path / "u.json").exists()
+    code = main(["calibrate", str(tmp_path / "nothing"), "--model", str(model), "-o", str(tmp_path / "u.json")])
+    _, err = capsys.readouterr()
+    assert code == 2 and "no such folder" in err and not (tmp_path / "u.json").exists()
     bad = tmp_path / "t.csv"
     bad.write_text("start_s,end_s,target\n0,1,teapot\n")
     code = main(
