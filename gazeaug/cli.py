@@ -51,6 +51,56 @@ def _count(maximum: int) -> Any:
     return _integer(1, maximum)
 
 
+def _add_engine_options(p: argparse.ArgumentParser, *, workers: bool = True) -> None:
+    """``--engine``, ``--ray-address``, ``--block-size`` (and ``--workers``): where a dataset run goes."""
+    p.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="local: this machine's processes (default); ray: actors on a Ray cluster (pip install 'gazeaug[ray]'; "
+        "docs/ray.md)",
+    )
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="HOST:PORT",
+        help="join the Ray cluster whose head is there (`ray start --head` prints it; 'auto': the cluster "
+        "this machine is part of, as in `ray job submit`); without it --engine ray starts Ray on this machine",
+    )
+    p.add_argument(
+        "--block-size",
+        type=_count(1_000_000),
+        default=64,
+        help="--engine ray: samples per block, the unit sent to an actor and retried (default 64)",
+    )
+    if workers:
+        p.add_argument(
+            "--workers",
+            type=_count(MAX_WORKERS),
+            default=None,
+            help=f"processes (local, default 1) or Ray actors (default: every CPU of the cluster); "
+            f"at most {MAX_WORKERS}",
+        )
+
+
+def _engine(args: argparse.Namespace, *, local_workers: bool = True) -> Any:
+    """The :class:`gazeaug.engine.Engine` of the options of :func:`_add_engine_options`.
+
+    ``local_workers``: whether the command has worker processes on the local engine.
+    """
+    from .engine import Engine
+    from .errors import GazeAugError
+
+    if args.engine != "ray":
+        if args.ray_address is not None:
+            raise GazeAugError("--ray-address: only with --engine ray")
+        if args.block_size != 64:
+            raise GazeAugError("--block-size: only with --engine ray")
+        if not local_workers and args.workers not in (None, 1):
+            raise GazeAugError(f"--workers: `gazeaug {args.command}` runs one process here; use --engine ray for more")
+    return Engine(args.engine, address=args.ray_address, workers=args.workers, block_size=args.block_size)
+
+
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat")
     p.add_argument(
@@ -160,9 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("dataset", type=Path, help="the dataset's root folder")
         a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
         a.add_argument("--format", choices=formats, help=format_help)
-        a.add_argument(
-            "--workers", type=_count(MAX_WORKERS), default=1, help=f"processes (default 1, at most {MAX_WORKERS})"
-        )
+        _add_engine_options(a)
         a.add_argument("--seed", type=_seed, default=0)
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
         a.add_argument("--overwrite", action="store_true", help="replace an existing complete OUT.h5")
@@ -210,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--format", choices=formats, help=format_help)
     ev.add_argument("--limit", type=_positive_int, default=None)
     ev.add_argument("--quiet", action="store_true")
+    _add_engine_options(ev)
 
     pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
     pr.add_argument("model", type=Path)
@@ -340,6 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a --sequence's subject from this seed (default --seed): the same person in sequences of other seeds",
     )
     sm.add_argument("--quiet", action="store_true")
+    _add_engine_options(sm)
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
     xp.add_argument("--train", type=Path, default=None, help="training dataset folder (default: simulated 'screen')")
@@ -618,12 +668,14 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
         )
     else:
         settings = JobSettings(kind="normalize-dataset", seed=args.seed, normalization=_settings(args))
+    engine = _engine(args)
     reader = open_dataset(args.dataset, args.format)
     summary = run_dataset(
         reader,
         args.output,
         settings,
-        workers=args.workers,
+        workers=args.workers or 1,
+        engine=engine,
         resume=args.resume,
         overwrite=args.overwrite,
         limit=args.limit,
@@ -684,17 +736,21 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .errors import GazeAugError
     from .evaluate import evaluate_dataset, evaluate_h5, write_report
     from .train import load_model
 
     model, meta = load_model(args.model)
     if args.dataset.suffix in (".h5", ".hdf5"):
+        if args.engine != "local":
+            raise GazeAugError("--engine ray: for raw datasets; a normalized .h5 is evaluated here")
         result = evaluate_h5(model, args.dataset)
     else:
         from .datasets import open_dataset
 
         reader = open_dataset(args.dataset, args.format)
-        result = evaluate_dataset(model, meta, reader, limit=args.limit, progress=not args.quiet)
+        engine = _engine(args, local_workers=False)
+        result = evaluate_dataset(model, meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
     paths = write_report(result, args.output)
     short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped")}
     short["per_subject"] = {k: round(v["mean_deg"], 3) for k, v in result["per_subject"].items()}
@@ -851,6 +907,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     faces = list(args.faces) if args.faces else [None]
     from .errors import GazeAugError
 
+    engine = _engine(args, local_workers=False)
+    if args.sequence is not None and engine.kind != "local":
+        raise GazeAugError("--sequence: one subject, simulated on this machine (no --engine ray)")
     if args.sequence is None:
         extra = [
             o
@@ -893,6 +952,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         per_video=args.per_video,
         all_faces=args.all_faces,
         settings=SimSettings(vary_identity=not args.no_identity_variation),
+        engine=engine,
     )
     print(json.dumps({k: summary[k] for k in ("output", "images", "faces", "subjects")}))
     return 0

@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 
 from facemesh.conventions import angular_error_deg, pitchyaw_to_vector
 
-from .datasets.base import DatasetError, DatasetReader
+from .datasets.base import DatasetError, DatasetReader, GazeSample
+from .engine import Engine
 from .errors import GazeAugError
 from .io_h5 import H5TrainingSet
 from .normalize import NormalizationSettings, NormalizedSample, gaze_direction, normalize_image
@@ -134,60 +135,123 @@ def _predict_normalized(
     return pred, sample
 
 
-def evaluate_dataset(
-    model: Any, meta: Mapping[str, Any], reader: DatasetReader, *, limit: int | None = None, progress: bool = True
-) -> dict[str, Any]:
-    """Errors on a raw dataset through test-time normalization and denormalization (see the module docstring)."""
+_EVAL_STATE: dict[str, Any] = {}
+
+
+def _eval_setup(model: Any, settings: NormalizationSettings, threads: int = 0) -> None:
+    """A worker's state: the model, the normalization and one landmark detector (``threads``: torch's; 0 keeps it)."""
+    from .pipeline import default_landmark_model
+
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    _EVAL_STATE.update(model=model, settings=settings, detector=default_landmark_model())
+
+
+def _evaluate_one(s: GazeSample) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """One sample's report row, or why it was skipped (with the worker's state, see :func:`_eval_setup`)."""
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
-    from .pipeline import default_landmark_model, fit_face
+    from .pipeline import fit_face
 
+    try:
+        image = s.load_image()
+        fit = fit_face(image, s.camera, _EVAL_STATE["detector"], source=str(s.image_path))
+        pred, sample = _predict_normalized(_EVAL_STATE["model"], image, fit, _EVAL_STATE["settings"])
+    except (NoFaceError, PoseError, InputError, GazeAugError) as exc:
+        return None, {"source_index": s.source_index, "image": str(s.image_path), "reason": str(exc)}
+    assert sample.face is not None
+    g = sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred))
+    truth = gaze_direction(sample.face.camera.reference_mm, s.gaze_target_mm, s.gaze_vector)
+    assert truth is not None  # every GazeSample has a target or a vector
+    row = {
+        "index": s.source_index,
+        "subject": s.subject,
+        "image": str(s.image_path),
+        "error_deg": float(angular_error_deg(g, truth)),
+        "gaze_camera": np.round(g, 6).tolist(),
+        **_face_frame(pred, sample.face.camera.gaze_pitchyaw(truth)),
+    }
+    return row, None
+
+
+def _evaluate_block(samples: list[GazeSample]) -> list[tuple[dict[str, Any] | None, dict[str, Any] | None]]:
+    """:func:`_evaluate_one` over a block (the unit a Ray actor processes)."""
+    out = []
+    for s in samples:
+        row, skip = _evaluate_one(s)
+        if skip is not None:
+            from .engine import node_name
+
+            skip = {**skip, "node": node_name()}
+        out.append((row, skip))
+    return out
+
+
+def evaluate_dataset(
+    model: Any,
+    meta: Mapping[str, Any],
+    reader: DatasetReader,
+    *,
+    limit: int | None = None,
+    progress: bool = True,
+    engine: Engine | None = None,
+) -> dict[str, Any]:
+    """Errors on a raw dataset through test-time normalization and denormalization (see the module docstring).
+
+    ``engine``: where the samples are processed (default this machine; on Ray, blocks of
+    ``engine.block_size`` samples, each actor with its own copy of the model).
+    """
     if limit is not None and not (isinstance(limit, int) and limit >= 1):
         raise GazeAugError(f"limit: expected an integer >= 1, got {limit!r}")
     total = len(reader) if limit is None else min(len(reader), limit)
     if total == 0:
         raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
     settings = settings_from_meta(meta)
-    detector = default_landmark_model()
-    errors, subjects, rows, skipped = [], [], [], []
+    rows, skipped = [], []
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="image", desc="evaluate", dynamic_ncols=True)
-    for s in reader:
-        if s.source_index >= total:
-            break
-        try:
-            image = s.load_image()
-            fit = fit_face(image, s.camera, detector, source=str(s.image_path))
-            pred, sample = _predict_normalized(model, image, fit, settings)
-        except (NoFaceError, PoseError, InputError, GazeAugError) as exc:
-            skipped.append({"source_index": s.source_index, "image": str(s.image_path), "reason": str(exc)})
-        else:
-            assert sample.face is not None
-            g = sample.face.camera.denormalize_vector(pitchyaw_to_vector(pred))
-            truth = gaze_direction(sample.face.camera.reference_mm, s.gaze_target_mm, s.gaze_vector)
-            assert truth is not None  # every GazeSample has a target or a vector
-            err = float(angular_error_deg(g, truth))
-            errors.append(err)
-            subjects.append(s.subject)
-            rows.append(
-                {
-                    "index": s.source_index,
-                    "subject": s.subject,
-                    "image": str(s.image_path),
-                    "error_deg": err,
-                    "gaze_camera": np.round(g, 6).tolist(),
-                    **_face_frame(pred, sample.face.camera.gaze_pitchyaw(truth)),
-                }
-            )
+
+    def take(_b: int, results: list[tuple[dict[str, Any] | None, dict[str, Any] | None]]) -> None:
+        for row, skip in results:
+            if row is not None:
+                rows.append(row)
+            if skip is not None:
+                skipped.append(skip)
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
-    out = _summary(np.asarray(errors), np.asarray(subjects))
+            bar.update(len(results))
+
+    samples = (s for s in reader if s.source_index < total)
+    try:
+        if engine is not None and engine.kind == "ray":
+            from .background import interrupt_between_steps
+            from .engine import chunks, map_blocks
+
+            blocks = enumerate(chunks(samples, engine.block_size))
+            with interrupt_between_steps() as interrupted:
+                map_blocks(
+                    engine,
+                    blocks,
+                    _evaluate_block,
+                    _eval_setup,
+                    (model, settings, 1),
+                    on_result=take,
+                    interrupted=interrupted,
+                )
+        else:
+            _eval_setup(model, settings)
+            for s in samples:
+                row, skip = _evaluate_one(s)
+                take(0, [(row, skip)])
+    finally:
+        if bar is not None:
+            bar.close()
+    out = _summary(np.asarray([r["error_deg"] for r in rows]), np.asarray([r["subject"] for r in rows]))
     out.update(
         source=str(getattr(reader, "root", "")),
         kind=reader.name,

@@ -159,6 +159,7 @@ class H5Writer:
         patch_size_wh: eye patch (width, height).
         resume: continue an interrupted run's ``.part`` file (whose ``settings`` must match).
         overwrite: replace an existing complete output.
+        compress: gzip the rows (default; off for the Ray engine's shards, which only live until merged).
 
     Raises:
         GazeAugError: the output exists (without ``overwrite``), a ``.part`` exists without
@@ -173,6 +174,7 @@ class H5Writer:
         *,
         resume: bool = False,
         overwrite: bool = False,
+        compress: bool = True,
     ):
         h5py = _import_h5py()
         self.path = Path(path)
@@ -243,9 +245,11 @@ class H5Writer:
                     maxshape=(None, *tail),
                     dtype=dt,
                     chunks=(_CHUNK, *tail),
-                    compression="gzip",
-                    compression_opts=1,
-                    shuffle=k not in ("left_eye", "right_eye"),
+                    **(
+                        {"compression": "gzip", "compression_opts": 1, "shuffle": k not in ("left_eye", "right_eye")}
+                        if compress
+                        else {}
+                    ),
                 )
             # per input sample (not per row): its index and its original (head pose, gaze), for the summary
             g = self._f.create_group("sources")
@@ -279,6 +283,30 @@ class H5Writer:
     def append_source(self, source_index: int, labels: NDArray[np.float64]) -> None:
         """Record one input sample's original labels: (2, 2) radians, rows (head pose, gaze), columns (pitch, yaw)."""
         self._pending_sources.append((source_index, np.asarray(labels, dtype=np.float32)))
+
+    def append_file(self, path: str | Path) -> int:
+        """Append every row, source and skip of another complete file of this schema (a shard), in its order.
+
+        The file's resume point becomes this writer's: shards are appended in dataset order.
+
+        Returns:
+            The rows appended.
+        """
+        h5py = _import_h5py()
+        with h5py.File(path, "r") as f:
+            if not f.attrs.get("complete", False):
+                raise GazeAugError(f"{path}: the shard is not complete")
+            arrays = {k: f[k][()] for k in _DTYPES}
+            index, labels = f["sources/index"][()], f["sources/labels"][()]
+            skipped = json.loads(f.attrs.get("skipped", "[]"))
+            next_index = int(f.attrs["next_source_index"])
+        rows = Rows(arrays)
+        if len(rows):
+            self._pending.append(rows)
+        self._pending_sources.extend((int(i), lab) for i, lab in zip(index, labels))
+        self.skipped.extend(skipped)
+        self.next_source_index = next_index
+        return len(rows)
 
     def _write_pending(self) -> None:
         """Write the buffered rows after the last rows known written.

@@ -18,7 +18,9 @@ columns, wrong calibration) stop the run with a message naming the file.
 from __future__ import annotations
 
 import json
+import shutil
 import time
+import uuid
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,12 +32,13 @@ from numpy.typing import NDArray
 from . import __version__
 from .background import interrupt_between_steps
 from .datasets.base import DatasetError, DatasetReader, GazeSample
+from .engine import Engine, chunks
 from .errors import GazeAugError
 from .io_h5 import H5Writer, Rows, rows_from_samples
 from .normalize import NormalizationSettings, normalize_image, views_at
 from .sampling import HeadPoseDistribution
 
-__all__ = ["JobSettings", "run_dataset", "process_sample", "SampleOutcome"]
+__all__ = ["JobSettings", "run_dataset", "process_sample", "SampleOutcome", "shard_dir"]
 
 KINDS = ("augment", "normalize-dataset")
 
@@ -244,17 +247,6 @@ def _process_chunk(samples: list[GazeSample]) -> list[SampleOutcome]:
     return list(_process_stream(samples))
 
 
-def _chunks(samples: Iterator[GazeSample], size: int) -> Iterator[list[GazeSample]]:
-    chunk: list[GazeSample] = []
-    for s in samples:
-        chunk.append(s)
-        if len(chunk) == size:
-            yield chunk
-            chunk = []
-    if chunk:
-        yield chunk
-
-
 def _outcomes(samples: Iterator[GazeSample], settings: JobSettings, workers: int) -> Iterator[SampleOutcome]:
     if workers <= 1:
         _worker_init(settings)
@@ -264,7 +256,7 @@ def _outcomes(samples: Iterator[GazeSample], settings: JobSettings, workers: int
 
     ctx = mp.get_context("spawn")
     with ctx.Pool(workers, initializer=_worker_init, initargs=(settings, 1)) as pool:
-        for outcomes in pool.imap(_process_chunk, _chunks(samples, _CHUNK_SAMPLES), chunksize=1):
+        for outcomes in pool.imap(_process_chunk, chunks(samples, _CHUNK_SAMPLES), chunksize=1):
             yield from outcomes
 
 
@@ -290,6 +282,100 @@ def _take(writer: H5Writer, outcome: SampleOutcome) -> None:
         writer.append_source(outcome.source_index, outcome.before)
 
 
+def shard_dir(output: str | Path) -> Path:
+    """Where the Ray engine's actors write their shards: ``OUT.h5.shards/`` beside the output."""
+    p = Path(output)
+    return p.with_name(p.name + ".shards")
+
+
+@dataclass(frozen=True)
+class _ShardTask:
+    """One block for a Ray actor: samples ``first`` to ``stop - 1``, written to ``path`` (see :func:`_ray_work`)."""
+
+    first: int
+    stop: int
+    samples: list[GazeSample]
+    path: str
+    attrs: dict[str, Any]
+    patch_size_wh: tuple[int, int]
+
+
+def _shard_matches(path: Path, attrs: dict[str, Any]) -> bool:
+    """A complete shard written with these settings, data and sample range (reused on ``--resume``)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if not f.attrs.get("complete", False):
+                return False
+            return all(
+                json.loads(f.attrs.get(k, "null")) == json.loads(json.dumps(attrs[k]))
+                for k in ("settings", "selection", "shard")
+            )
+    except (OSError, ValueError):
+        return False
+
+
+def _ray_setup(settings: JobSettings) -> None:
+    """A Ray actor's state: what a local worker process builds (:func:`_worker_init`)."""
+    _worker_init(settings, 1)
+
+
+def _ray_work(task: _ShardTask) -> dict[str, Any]:
+    """Process one block in a Ray actor into its shard file (one writer per shard), unless already there."""
+    import contextlib
+    import os
+
+    from .engine import node_name
+
+    node = node_name()
+    path = Path(task.path)
+    result = {"shard": task.path, "node": node, "samples": task.stop - task.first, "reused": True}
+    if path.exists() and _shard_matches(path, task.attrs):
+        return result
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # A name of its own for this attempt: an actor presumed lost that is still writing never
+    # shares a file with the one redoing its block (both write the same rows; the last rename wins).
+    mine = path.with_name(f"{path.stem}.{uuid.uuid4().hex[:12]}.h5")
+    writer = H5Writer(mine, task.attrs, task.patch_size_wh, compress=False)  # read once by the driver, then deleted
+    try:
+        for outcome in _process_stream(task.samples):
+            if outcome.skipped is not None:  # where it failed: a path one node cannot see is named with it
+                outcome = SampleOutcome(outcome.source_index, None, {**outcome.skipped, "node": node}, outcome.before)
+            _take(writer, outcome)
+        writer.finish()
+        os.replace(mine, path)
+    except BaseException:
+        writer.discard()
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(mine)
+        raise
+    return {**result, "reused": False}
+
+
+def _ray_blocks(
+    samples: Iterable[GazeSample], size: int, shards: Path, attrs: dict[str, Any], patch_size_wh: tuple[int, int]
+) -> Iterator[tuple[int, _ShardTask]]:
+    """Blocks of consecutive samples, cut at multiples of ``size`` (so a resumed run cuts the same shards)."""
+    chunk: list[GazeSample] = []
+    b = 0
+    for sample in samples:
+        chunk.append(sample)
+        if (sample.source_index + 1) % size == 0:
+            yield b, _shard_task(chunk, shards, attrs, patch_size_wh)
+            b, chunk = b + 1, []
+    if chunk:
+        yield b, _shard_task(chunk, shards, attrs, patch_size_wh)
+
+
+def _shard_task(
+    chunk: list[GazeSample], shards: Path, attrs: dict[str, Any], patch_size_wh: tuple[int, int]
+) -> _ShardTask:
+    first, stop = chunk[0].source_index, chunk[-1].source_index + 1
+    path = shards / f"samples-{first:09d}-{stop:09d}.h5"
+    return _ShardTask(first, stop, chunk, str(path), {**attrs, "shard": {"first": first, "stop": stop}}, patch_size_wh)
+
+
 def run_dataset(
     reader: DatasetReader,
     output: str | Path,
@@ -301,18 +387,62 @@ def run_dataset(
     limit: int | None = None,
     progress: bool = True,
     flush_every: int = 16,
+    engine: Engine | None = None,
 ) -> dict[str, Any]:
     """Run ``augment`` or ``normalize-dataset`` over a dataset into ``output`` (.h5).
 
     Writes ``output`` (renamed from ``output.part`` when done), ``output`` with
     ``.summary.json`` and ``.distribution.png`` suffixes beside it.
 
+    With ``engine`` on Ray, the actors write one shard per block into
+    ``OUT.h5.shards/`` (see :func:`shard_dir`); the driver appends each shard to
+    ``OUT.h5.part`` in dataset order as soon as the blocks before it are in, and
+    deletes it. The arrays are those of the local engine with the same seed.
+    ``--resume`` continues after the last appended shard, reusing the complete
+    shards already written.
+
+    Args:
+        reader: the dataset.
+        output: the ``.h5`` to write.
+        settings: what the run does.
+        workers: processes of the local engine (``engine.workers`` for Ray).
+        resume: continue an interrupted run (the same settings and data only).
+        overwrite: replace a complete output.
+        limit: only the first ``limit`` samples.
+        progress: show a progress bar.
+        flush_every: local engine: samples between flushes (the resume granularity).
+        engine: where the work runs (default: this machine, ``workers`` processes).
+
     Returns:
         The summary (also written as JSON).
 
     Raises:
-        DatasetError: bad dataset files; GazeAugError: bad settings or output state.
+        DatasetError: bad dataset files; GazeAugError: bad settings or output state, or Ray
+        cannot be reached.
     """
+    engine = engine or Engine()
+    if engine.kind == "ray":
+        from .engine import ray_session
+
+        with ray_session(engine):  # connected (or failed to) before anything is written
+            return _run_dataset(
+                reader, output, settings, workers, resume, overwrite, limit, progress, flush_every, engine
+            )
+    return _run_dataset(reader, output, settings, workers, resume, overwrite, limit, progress, flush_every, engine)
+
+
+def _run_dataset(
+    reader: DatasetReader,
+    output: str | Path,
+    settings: JobSettings,
+    workers: int,
+    resume: bool,
+    overwrite: bool,
+    limit: int | None,
+    progress: bool,
+    flush_every: int,
+    engine: Engine,
+) -> dict[str, Any]:
     from facemesh.outputs import output_lock
 
     out = Path(output)
@@ -346,27 +476,59 @@ def run_dataset(
             bar = tqdm(total=total, initial=start, unit="sample", desc=settings.kind, dynamic_ncols=True)
         t0 = time.perf_counter()
         t_first = None
+        at_first = 0  # samples done at t_first (1 locally, a block on Ray)
         processed = 0
+        shards = shard_dir(out)
+
+        def merge(_b: int, result: dict[str, Any]) -> None:
+            """Append one Ray shard (in block order) to the output and drop it."""
+            nonlocal t_first, processed, at_first
+            path = Path(result["shard"])
+            if not path.exists():
+                raise GazeAugError(
+                    f"{path}: the shard written on {result['node']} is not visible on this machine; "
+                    "-o must be on a filesystem every node shares (docs/ray.md)"
+                )
+            writer.append_file(path)
+            writer.flush()
+            path.unlink()
+            processed += result["samples"]
+            if t_first is None:
+                t_first, at_first = time.perf_counter(), processed
+            if bar is not None:
+                bar.update(result["samples"])
+
         try:
             with interrupt_between_steps() as interrupted:
-                for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
-                    _take(writer, outcome)
-                    if t_first is None:
-                        t_first = time.perf_counter()
-                    processed += 1
-                    if bar is not None:
-                        bar.update(1)
-                    if n % flush_every == 0:
-                        writer.flush()
-                    if interrupted():
-                        raise KeyboardInterrupt
+                if engine.kind == "ray":
+                    from .engine import map_blocks
+
+                    blocks = _ray_blocks(todo, engine.block_size, shards, attrs, settings.normalization.patch_size_wh)
+                    map_blocks(
+                        engine, blocks, _ray_work, _ray_setup, (settings,), on_result=merge, interrupted=interrupted
+                    )
+                else:
+                    for n, outcome in enumerate(_outcomes(todo, settings, workers), start=1):
+                        _take(writer, outcome)
+                        processed += 1
+                        if t_first is None:
+                            t_first, at_first = time.perf_counter(), processed
+                        if bar is not None:
+                            bar.update(1)
+                        if n % flush_every == 0:
+                            writer.flush()
+                        if interrupted():
+                            raise KeyboardInterrupt
         except KeyboardInterrupt:
-            writer.close()  # the .part stays for --resume
+            writer.close()  # the .part (and the complete shards) stay for --resume
             if bar is not None:
                 bar.close()
             raise
         except BaseException:
+            created = writer.created
             writer.discard()  # a failed run (bad dataset file...) leaves nothing to resume that it made
+            if created:
+                shutil.rmtree(shards, ignore_errors=True)
             if bar is not None:
                 bar.close()
             raise
@@ -375,9 +537,12 @@ def run_dataset(
         t_end = time.perf_counter()
         seconds = t_end - t0
         steady = (
-            (processed - 1) / (t_end - t_first) if t_first is not None and processed > 1 and t_end > t_first else None
+            (processed - at_first) / (t_end - t_first)
+            if t_first is not None and processed > at_first and t_end > t_first
+            else None
         )
         writer.finish()
+        shutil.rmtree(shards, ignore_errors=True)  # only leftovers of lost actors remain there
         return _summarise(out, reader, settings, writer, processed, seconds, total, steady)
 
 

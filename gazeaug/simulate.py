@@ -44,6 +44,7 @@ from facemesh.render import (
     shade,
 )
 
+from .engine import Engine
 from .errors import GazeAugError
 from .sampling import Rig
 
@@ -777,6 +778,7 @@ def simulate(
     identities_per_face: int = 1,
     per_video: int = 8,
     all_faces: bool = False,
+    engine: Engine | None = None,
 ) -> dict[str, Any]:
     """Write a simulated dataset in the folder format (images, ``labels.csv``, ``simulation.jsonl``).
 
@@ -801,6 +803,8 @@ def simulate(
             or ``simIIiKK``. Each identity is a subject of its own in ``labels.csv``.
         per_video: frames taken from each video file.
         all_faces: every face of a picture with several (one crop each), not only the largest.
+        engine: where the faces are rendered (default this machine; on Ray one face per block,
+            the images written by the actors into the output folder, which every node must see).
 
     Returns:
         A summary (counts, rig, settings).
@@ -829,6 +833,7 @@ def simulate(
             settings=s,
             progress=progress,
             identities=identities_per_face,
+            engine=engine,
         )
 
 
@@ -846,6 +851,70 @@ def _expand_faces(faces: Sequence[Any], *, per_video: int, all_faces: bool) -> l
     return out
 
 
+@dataclass(frozen=True)
+class _FaceTask:
+    """The images of one face (see :func:`_simulate_face`); ``out`` is the dataset folder being written."""
+
+    index: int
+    face: Any
+    out: str
+    rig: Rig
+    per_face: int
+    seed: int
+    settings: SimSettings
+    identities: int
+
+
+_SIM_STATE: dict[str, Any] = {}
+
+
+def _sim_setup() -> None:
+    """A worker's landmark detector, built once (in a Ray actor, inside the actor)."""
+    from .pipeline import default_landmark_model
+
+    _SIM_STATE["detector"] = default_landmark_model()
+
+
+def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Render and save the images of face ``task.index``: its ``labels.csv`` rows and ``simulation.jsonl`` records."""
+    from facemesh.io import save_image_rgb
+
+    s, rig, i, out = task.settings, task.rig, task.index, Path(task.out)
+    w, h = rig.image_size_wh
+    k = np.array(rig.camera().matrix)
+    image, source, person = face_image(task.face)
+    photo = PhotoFace.from_image(image, _SIM_STATE["detector"], source)
+    subjects = []
+    for kk in range(task.identities):
+        sid = f"sim{i:02d}" if task.identities == 1 else f"sim{i:02d}i{kk:02d}"
+        draw = draw_subject(s, np.random.default_rng([task.seed, i, 10**6 + kk]))
+        subjects.append(SimSubject(photo, sid, s, draw))
+    rows, truth = [], []
+    for j in range(task.per_face):
+        subj = subjects[j % task.identities]
+        subject_id = subj.name
+        rng = np.random.default_rng([task.seed, i, j])
+        r, t, target = _rig_pose(rig, rng)
+        frame = subj.render(r, t, target, k, (w, h), rng)
+        name = f"{subject_id}/{j:05d}.jpg"
+        save_image_rgb(out / name, frame.image)
+        rows.append(label_row(name, subject_id, rig, target))
+        truth.append(
+            {
+                "image": name,
+                "source_face": source,
+                "person": person,
+                **frame.truth(),
+                "kappa_deg": np.degrees(subj.kappa_rad).tolist(),
+                "face_coverage": frame.coverage,
+                "subject": subject_id,
+                "subject_draw": subj.draw.as_dict(),
+                "light": frame.light,
+            }
+        )
+    return rows, truth
+
+
 def _simulate_into(
     out: Path,
     final: Path,
@@ -857,56 +926,44 @@ def _simulate_into(
     settings: SimSettings,
     progress: bool,
     identities: int = 1,
+    engine: Engine | None = None,
 ) -> dict[str, Any]:
-    from facemesh.io import atomic_write, save_image_rgb
+    from facemesh.io import atomic_write
 
+    from .background import interrupt_between_steps
     from .datasets.folder import write_labels_csv
-    from .pipeline import default_landmark_model
 
     s = settings
-    detector = default_landmark_model()
-    w, h = rig.image_size_wh
-    k = np.array(rig.camera().matrix)
-    rows, truth = [], []
+    rows: list[dict[str, Any]] = []
+    truth: list[dict[str, Any]] = []
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(faces) * per_face, unit="image", desc="simulate", dynamic_ncols=True)
-    for i, face in enumerate(faces):
-        image, source, person = face_image(face)
-        photo = PhotoFace.from_image(image, detector, source)
-        subjects = []
-        for kk in range(identities):
-            sid = f"sim{i:02d}" if identities == 1 else f"sim{i:02d}i{kk:02d}"
-            draw = draw_subject(s, np.random.default_rng([seed, i, 10**6 + kk]))
-            subjects.append(SimSubject(photo, sid, s, draw))
-        for j in range(per_face):
-            subj = subjects[j % identities]
-            subject_id = subj.name
-            rng = np.random.default_rng([seed, i, j])
-            r, t, target = _rig_pose(rig, rng)
-            frame = subj.render(r, t, target, k, (w, h), rng)
-            name = f"{subject_id}/{j:05d}.jpg"
-            save_image_rgb(out / name, frame.image)
-            rows.append(label_row(name, subject_id, rig, target))
-            truth.append(
-                {
-                    "image": name,
-                    "source_face": source,
-                    "person": person,
-                    **frame.truth(),
-                    "kappa_deg": np.degrees(subj.kappa_rad).tolist(),
-                    "face_coverage": frame.coverage,
-                    "subject": subject_id,
-                    "subject_draw": subj.draw.as_dict(),
-                    "light": frame.light,
-                }
-            )
-            if bar is not None:
-                bar.update(1)
-    if bar is not None:
-        bar.close()
+    tasks = (
+        (i, _FaceTask(i, face, str(out.resolve()), rig, per_face, seed, s, identities)) for i, face in enumerate(faces)
+    )
+
+    def take(_i: int, result: tuple[list[dict[str, Any]], list[dict[str, Any]]]) -> None:
+        rows.extend(result[0])
+        truth.extend(result[1])
+        if bar is not None:
+            bar.update(len(result[0]))
+
+    try:
+        if engine is not None and engine.kind == "ray":
+            from .engine import map_blocks
+
+            with interrupt_between_steps() as interrupted:
+                map_blocks(engine, tasks, _simulate_face, _sim_setup, on_result=take, interrupted=interrupted)
+        else:
+            _sim_setup()
+            for i, task in tasks:
+                take(i, _simulate_face(task))
+    finally:
+        if bar is not None:
+            bar.close()
     write_labels_csv(out / "labels.csv", rows)
     with atomic_write(out / "simulation.jsonl") as fh:
         fh.write("".join(json.dumps(t) + "\n" for t in truth).encode("utf-8"))

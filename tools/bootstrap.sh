@@ -56,7 +56,7 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
 echo "bootstrap: installing the project and its dependencies into $VENV"
-"$VENV/bin/python" -m pip install -q -e ".[dev,train]"
+"$VENV/bin/python" -m pip install -q -e ".[dev,train,ray]"
 
 # --- glTF validator (tests only; skipped by the tests when absent) -----------
 if [ "${WITH_VALIDATOR:-0}" = 1 ]; then
