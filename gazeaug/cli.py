@@ -51,8 +51,8 @@ def _count(maximum: int) -> Any:
     return _integer(1, maximum)
 
 
-def _add_engine_options(p: argparse.ArgumentParser, *, workers: bool = True) -> None:
-    """``--engine``, ``--ray-address``, ``--block-size`` (and ``--workers``): where a dataset run goes."""
+def _add_engine_options(p: argparse.ArgumentParser, *, block_size: bool = True) -> None:
+    """``--engine``, ``--ray-address``, ``--workers`` (and ``--block-size``): where a dataset run goes."""
     p.add_argument(
         "--engine",
         choices=("local", "ray"),
@@ -67,20 +67,19 @@ def _add_engine_options(p: argparse.ArgumentParser, *, workers: bool = True) -> 
         help="join the Ray cluster whose head is there (`ray start --head` prints it; 'auto': the cluster "
         "this machine is part of, as in `ray job submit`); without it --engine ray starts Ray on this machine",
     )
-    p.add_argument(
-        "--block-size",
-        type=_count(1_000_000),
-        default=64,
-        help="--engine ray: samples per block, the unit sent to an actor and retried (default 64)",
-    )
-    if workers:
+    if block_size:
         p.add_argument(
-            "--workers",
-            type=_count(MAX_WORKERS),
+            "--block-size",
+            type=_count(1_000_000),
             default=None,
-            help=f"processes (local, default 1) or Ray actors (default: every CPU of the cluster); "
-            f"at most {MAX_WORKERS}",
+            help="--engine ray: samples per block, the unit sent to an actor and retried (default 64)",
         )
+    p.add_argument(
+        "--workers",
+        type=_count(MAX_WORKERS),
+        default=None,
+        help=f"processes (local, default 1) or Ray actors (default: every CPU of the cluster); at most {MAX_WORKERS}",
+    )
 
 
 def _engine(args: argparse.Namespace, *, local_workers: bool = True) -> Any:
@@ -91,14 +90,15 @@ def _engine(args: argparse.Namespace, *, local_workers: bool = True) -> Any:
     from .engine import Engine
     from .errors import GazeAugError
 
+    block_size = getattr(args, "block_size", None)
     if args.engine != "ray":
         if args.ray_address is not None:
             raise GazeAugError("--ray-address: only with --engine ray")
-        if args.block_size != 64:
+        if block_size is not None:
             raise GazeAugError("--block-size: only with --engine ray")
         if not local_workers and args.workers not in (None, 1):
             raise GazeAugError(f"--workers: `gazeaug {args.command}` runs one process here; use --engine ray for more")
-    return Engine(args.engine, address=args.ray_address, workers=args.workers, block_size=args.block_size)
+    return Engine(args.engine, address=args.ray_address, workers=args.workers, block_size=block_size or 64)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a --sequence's subject from this seed (default --seed): the same person in sequences of other seeds",
     )
     sm.add_argument("--quiet", action="store_true")
-    _add_engine_options(sm)
+    _add_engine_options(sm, block_size=False)  # one face per block
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
     xp.add_argument("--train", type=Path, default=None, help="training dataset folder (default: simulated 'screen')")
@@ -740,16 +740,16 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .evaluate import evaluate_dataset, evaluate_h5, write_report
     from .train import load_model
 
+    engine = _engine(args, local_workers=False)
     model, meta = load_model(args.model)
     if args.dataset.suffix in (".h5", ".hdf5"):
-        if args.engine != "local":
+        if engine.kind != "local":
             raise GazeAugError("--engine ray: for raw datasets; a normalized .h5 is evaluated here")
         result = evaluate_h5(model, args.dataset)
     else:
         from .datasets import open_dataset
 
         reader = open_dataset(args.dataset, args.format)
-        engine = _engine(args, local_workers=False)
         result = evaluate_dataset(model, meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
     paths = write_report(result, args.output)
     short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped")}

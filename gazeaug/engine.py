@@ -30,7 +30,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import socket
+import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -39,7 +42,17 @@ from typing import Any
 
 from .errors import GazeAugError
 
-__all__ = ["Engine", "ENGINES", "chunks", "import_ray", "check_address", "ray_session", "map_blocks", "node_name"]
+__all__ = [
+    "Engine",
+    "ENGINES",
+    "WorkersLostError",
+    "chunks",
+    "import_ray",
+    "check_address",
+    "ray_session",
+    "map_blocks",
+    "node_name",
+]
 
 ENGINES = ("local", "ray")
 _log = logging.getLogger(__name__)
@@ -51,6 +64,10 @@ _DEPTH = 2
 _MAX_ATTEMPTS = 4
 #: How long a run waits with no actor running (starting ones included: MediaPipe and a scene take seconds).
 _NO_WORKER_TIMEOUT_S = 300.0
+
+
+class WorkersLostError(GazeAugError):
+    """The cluster lost its workers (too often, or all of them for too long): the work done so far is resumable."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +91,8 @@ class Engine:
     block_size: int = 64
 
     def __post_init__(self) -> None:
+        if isinstance(self.address, str):
+            object.__setattr__(self, "address", self.address.strip())
         if self.kind not in ENGINES:
             raise GazeAugError(f"engine: expected one of {ENGINES}, got {self.kind!r}")
         if self.address is not None and self.kind != "ray":
@@ -170,13 +189,16 @@ def ray_session(engine: Engine) -> Iterator[Any]:
     Yields:
         The ``ray`` module.
     """
-    if engine.address is not None and engine.address != "auto":
+    if engine.address == "auto" and os.environ.get("RAY_ADDRESS"):  # what "auto" joins first
+        check_address(os.environ["RAY_ADDRESS"].strip())
+    elif engine.address is not None and engine.address != "auto":
         check_address(engine.address)
     joining_with_token = engine.address is not None and "RAY_AUTH_MODE" not in os.environ and _token_available()
     if joining_with_token:
         # A head started by `ray start --head` requires its token; Ray sends the token it has only
         # when told to (it does for address="auto", not for an explicit address). Read at import.
         os.environ["RAY_AUTH_MODE"] = "token"
+    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "error")  # Ray's C++ retry warnings: one line of ours instead
     ray = import_ray()
     if ray.is_initialized():
         yield ray
@@ -191,24 +213,37 @@ def ray_session(engine: Engine) -> Iterator[Any]:
         "log_to_driver": False,
         "include_dashboard": False,
     }
+    # Ray's processes are started with Ctrl-C blocked: a Ctrl-C in the terminal reaches the whole
+    # process group, and Ray's daemons killed half-way through their start crash the driver or are
+    # left behind. This process takes the Ctrl-C (after the start) and stops them in order.
+    main = threading.current_thread() is threading.main_thread()
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if main else None
+    started = False
     try:
-        if engine.address is not None:
-            ray.init(address=engine.address, **options)
-        else:
-            ray.init(address="local", num_cpus=engine.workers or os.cpu_count() or 1, **options)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        hint = (
-            "; a cluster with token authentication (the default of `ray start`) needs its token here: "
-            "RAY_AUTH_TOKEN, or ~/.ray/auth_token copied from the head (docs/ray.md)"
-            if engine.address is not None
-            else ""
-        )
-        raise GazeAugError(f"could not start or join Ray ({engine.address or 'local'}): {first}{hint}") from None
-    try:
-        yield ray
+        try:
+            if engine.address is not None:
+                ray.init(address=engine.address, **options)
+            else:
+                ray.init(address="local", num_cpus=engine.workers or os.cpu_count() or 1, **options)
+            started = True
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            hint = (
+                "; a cluster with token authentication (the default of `ray start`) needs its token here: "
+                "RAY_AUTH_TOKEN, or ~/.ray/auth_token copied from the head (docs/ray.md)"
+                if engine.address is not None and engine.address != "auto"
+                else ""
+            )
+            raise GazeAugError(f"could not start or join Ray ({engine.address or 'local'}): {first}{hint}") from None
+        finally:
+            if mask is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a Ctrl-C pressed meanwhile arrives here
+        # Ray reports lost workers on stdout from a thread of its own: stdout is the command's result.
+        with contextlib.redirect_stdout(sys.stderr):
+            yield ray
     finally:
-        ray.shutdown()
+        if started:
+            ray.shutdown()
 
 
 def _token_available() -> bool:
@@ -222,9 +257,13 @@ def _token_available() -> bool:
 class _Actor:
     """One stateful worker: ``setup(*setup_args)`` once, then ``work(block)`` per block."""
 
-    def __init__(self, setup: Callable[..., Any], setup_args: tuple[Any, ...]):
+    def __init__(self, setup: Callable[..., Any], setup_args: tuple[Any, ...], cwd: str):
         import cv2
 
+        # Relative paths (the dataset, -o, --faces) mean what they mean where the command runs: on a
+        # shared filesystem the same folder exists on every node. Where it does not, absolute paths still work.
+        with contextlib.suppress(OSError):
+            os.chdir(cwd)
         cv2.setNumThreads(0)  # one actor per CPU: no OpenCV thread pool inside
         setup(*setup_args)
 
@@ -299,14 +338,14 @@ def map_blocks(
         source = iter(blocks)
         exhausted = False
         next_out = 0
-        started = replaced = 0
+        started = 0
         any_ran = False
 
         actors_pending: dict[int, Any] = {}  # actor id -> handle, until its node() answered
 
         def start_actor() -> None:
             nonlocal started
-            handle = remote.remote(setup, setup_args)
+            handle = remote.remote(setup, setup_args, os.getcwd())
             aid = started
             started += 1
             actors_pending[aid] = handle
@@ -314,7 +353,6 @@ def map_blocks(
 
         def lose(aid: int, why: BaseException, block: int | None = None) -> None:
             """Actor ``aid`` is gone: its blocks in flight (and ``block``, already taken out) are sent again."""
-            nonlocal replaced
             _log.info("Ray worker %d lost (%s): its blocks go to the others", aid, type(why).__name__)
             handle = actors.pop(aid, None) or actors_pending.pop(aid, None)
             load.pop(aid, None)
@@ -326,13 +364,12 @@ def map_blocks(
             for b in sorted(mine, reverse=True):  # the earliest block first in the queue
                 attempts[b] = attempts.get(b, 0) + 1
                 if attempts[b] >= _MAX_ATTEMPTS:
-                    raise GazeAugError(f"block {b} was lost with its Ray worker {_MAX_ATTEMPTS} times; giving up")
+                    raise WorkersLostError(f"block {b} was lost with its Ray worker {_MAX_ATTEMPTS} times; giving up")
                 todo.appendleft(b)
             if handle is not None:
                 with contextlib.suppress(Exception):
                     ray.kill(handle)
-            if replaced < 2 * n + 2:  # a replacement, started where the cluster has room
-                replaced += 1
+            if len(actors) + len(actors_pending) < n:  # a replacement, started where the cluster has room
                 start_actor()
 
         def next_block() -> int | None:
@@ -365,15 +402,15 @@ def map_blocks(
                 if exhausted and not payload:  # every block read has been handed over
                     break
                 if not inflight and not starting:
-                    raise GazeAugError("every Ray worker was lost and none could be started again")
+                    raise WorkersLostError("every Ray worker was lost and none could be started again")
                 if actors:
                     idle_since = None
                 elif idle_since is None:
                     idle_since = time.monotonic()
                 elif time.monotonic() - idle_since > _NO_WORKER_TIMEOUT_S:
-                    raise GazeAugError(
+                    raise WorkersLostError(
                         f"no Ray worker has been running for {_NO_WORKER_TIMEOUT_S:.0f} s: the cluster has no free "
-                        "CPU for one (ray status shows its resources); the run can be resumed with --resume"
+                        "CPU for one (ray status shows its resources)"
                     )
                 ready, _ = ray.wait([*inflight, *starting], num_returns=1, timeout=0.5)
                 if interrupted():

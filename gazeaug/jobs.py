@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from . import __version__
 from .background import interrupt_between_steps
 from .datasets.base import DatasetError, DatasetReader, GazeSample
-from .engine import Engine, chunks
+from .engine import Engine, WorkersLostError, chunks
 from .errors import GazeAugError
 from .io_h5 import H5Writer, Rows, rows_from_samples
 from .normalize import NormalizationSettings, normalize_image, views_at
@@ -478,7 +478,7 @@ def _run_dataset(
         t_first = None
         at_first = 0  # samples done at t_first (1 locally, a block on Ray)
         processed = 0
-        shards = shard_dir(out)
+        shards = shard_dir(out.resolve())  # absolute: actors may run in another folder
 
         def merge(_b: int, result: dict[str, Any]) -> None:
             """Append one Ray shard (in block order) to the output and drop it."""
@@ -524,6 +524,13 @@ def _run_dataset(
             if bar is not None:
                 bar.close()
             raise
+        except WorkersLostError as exc:  # the cluster, not the data: what was done stays, as for Ctrl-C
+            writer.close()
+            if bar is not None:
+                bar.close()
+            raise WorkersLostError(
+                f"{exc}; kept {writer.part} and the finished shards: run the same command with --resume to continue"
+            ) from None
         except BaseException:
             created = writer.created
             writer.discard()  # a failed run (bad dataset file...) leaves nothing to resume that it made
