@@ -150,6 +150,22 @@ def _import_h5py() -> Any:
     return h5py
 
 
+def check_output_state(path: Path, *, resume: bool, overwrite: bool) -> None:
+    """What :class:`H5Writer` refuses before writing, checked alone (before starting a cluster, say).
+
+    Raises:
+        GazeAugError: not ``.h5``; a ``.part`` left by an interrupted run, without ``resume``.
+        OutputExistsError: the output exists, without ``overwrite``.
+    """
+    if path.suffix not in (".h5", ".hdf5"):
+        raise GazeAugError(f"{path}: the output must end in .h5")
+    if path.exists() and not overwrite:
+        raise OutputExistsError(f"{path} exists and is complete", remedy="overwrite")
+    part = part_path(path)
+    if part.exists() and not resume:
+        raise GazeAugError(f"{part}: an interrupted run left it (no run is writing it now)", remedy="resume")
+
+
 class H5Writer:
     """Append rows to ``OUT.h5.part``; :meth:`finish` marks it complete and renames it to ``OUT.h5``.
 
@@ -178,11 +194,8 @@ class H5Writer:
     ):
         h5py = _import_h5py()
         self.path = Path(path)
-        if self.path.suffix not in (".h5", ".hdf5"):
-            raise GazeAugError(f"{self.path}: the output must end in .h5")
+        check_output_state(self.path, resume=resume, overwrite=overwrite)
         self.part = part_path(self.path)
-        if self.path.exists() and not overwrite:
-            raise OutputExistsError(f"{self.path} exists and is complete", remedy="overwrite")
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
         selection = json.dumps(attrs.get("selection", {}), sort_keys=True)
         self.created = False  # True when this run made the .part file (see :meth:`discard`)
@@ -218,10 +231,6 @@ class H5Writer:
             self.next_source_index = int(self._f.attrs.get("next_source_index", 0))
             self.skipped = json.loads(self._f.attrs.get("skipped", "[]"))
         else:
-            if self.part.exists():
-                raise GazeAugError(
-                    f"{self.part}: an interrupted run left it (no run is writing it now)", remedy="resume"
-                )
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._f = h5py.File(self.part, "w")
             self.created = True

@@ -423,6 +423,9 @@ def run_dataset(
     engine = engine or Engine()
     if engine.kind == "ray":
         from .engine import ray_session
+        from .io_h5 import check_output_state
+
+        check_output_state(Path(output), resume=resume, overwrite=overwrite)  # at once, not after Ray's start
 
         with ray_session(engine):  # connected (or failed to) before anything is written
             return _run_dataset(

@@ -153,6 +153,14 @@ def test_a_wrong_address_fails_at_once_and_writes_nothing(dataset, tmp_path):
         th.join(5)
 
 
+def test_the_output_is_checked_before_ray_starts(dataset, local_output):
+    from facemesh.outputs import OutputExistsError
+
+    nowhere = Engine("ray", address=f"127.0.0.1:{_free_port()}")  # never asked: the output is refused first
+    with pytest.raises(OutputExistsError, match="exists and is complete"):
+        run_dataset(open_dataset(dataset), local_output, SETTINGS, progress=False, engine=nowhere)
+
+
 def test_cli_options_are_checked(dataset, tmp_path):
     for extra, message in (
         (["--ray-address", "127.0.0.1:6379"], "only with --engine ray"),
