@@ -178,15 +178,14 @@ def _evaluate_one(s: GazeSample) -> tuple[dict[str, Any] | None, dict[str, Any] 
 
 
 def _evaluate_block(samples: list[GazeSample]) -> list[tuple[dict[str, Any] | None, dict[str, Any] | None]]:
-    """:func:`_evaluate_one` over a block (the unit a Ray actor processes)."""
+    """:func:`_evaluate_one` over a block (the unit a Ray actor processes); skips name the node."""
+    from .engine import node_name
+
+    node = node_name()
     out = []
     for s in samples:
         row, skip = _evaluate_one(s)
-        if skip is not None:
-            from .engine import node_name
-
-            skip = {**skip, "node": node_name()}
-        out.append((row, skip))
+        out.append((row, None if skip is None else {**skip, "node": node}))
     return out
 
 

@@ -17,6 +17,7 @@ columns, wrong calibration) stop the run with a message naming the file.
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 import time
@@ -357,15 +358,9 @@ def _ray_blocks(
     samples: Iterable[GazeSample], size: int, shards: Path, attrs: dict[str, Any], patch_size_wh: tuple[int, int]
 ) -> Iterator[tuple[int, _ShardTask]]:
     """Blocks of consecutive samples, cut at multiples of ``size`` (so a resumed run cuts the same shards)."""
-    chunk: list[GazeSample] = []
-    b = 0
-    for sample in samples:
-        chunk.append(sample)
-        if (sample.source_index + 1) % size == 0:
-            yield b, _shard_task(chunk, shards, attrs, patch_size_wh)
-            b, chunk = b + 1, []
-    if chunk:
-        yield b, _shard_task(chunk, shards, attrs, patch_size_wh)
+    groups = itertools.groupby(samples, key=lambda s: s.source_index // size)
+    for b, (_, group) in enumerate(groups):
+        yield b, _shard_task(list(group), shards, attrs, patch_size_wh)
 
 
 def _shard_task(
