@@ -108,9 +108,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
     b.add_argument(
         "--reconstruct",
-        choices=("auto", "ball_pivoting"),
+        choices=("auto", "bpa+fill", "bpa", "poisson", "delaunay", "ball_pivoting"),
         default="auto",
-        help="triangles: the model's (auto) or Ball-Pivoting",
+        metavar="{auto,bpa+fill,bpa,poisson,delaunay}",
+        help="triangles: auto = the face model's, else bpa+fill (Ball-Pivoting with its holes closed; "
+        "delaunay below 20 points); or one method for any model (docs/face_model.md)",
     )
     b.add_argument(
         "--bpa-backend", choices=("open3d", "pymeshlab"), default="open3d", help="Ball-Pivoting implementation"

@@ -36,8 +36,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .conventions import gltf_to_opencv_directions, gltf_uv_to_bottom_left_uv, opencv_to_gltf_points, pixels_to_uv
-from .pose import solve_head_pose, undistort_to_rays
-from .reconstruct import BallPivotingSettings, ball_pivoting
+from .pose import project_points, solve_head_pose, undistort_to_rays
+from .reconstruct import (
+    MIN_SURFACE_POINTS,
+    SURFACE_METHODS,
+    BallPivotingSettings,
+    PoissonSettings,
+    reconstruct_surface,
+)
 from .types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose, InputError
 
 if TYPE_CHECKING:  # heavy optional libraries: imported where used
@@ -71,22 +77,32 @@ class BuildSettings:
         texture_margin: margin added on every side of the landmarks' bounding
             box when cropping the texture, as a fraction of the box's larger
             side (default 0.15; the outer landmarks are the face contour).
-        reconstruction: ``"auto"`` uses the face model's triangles when it has
-            them and Ball-Pivoting otherwise; ``"ball_pivoting"`` always
-            reconstructs.
-        ball_pivoting: settings of the Ball-Pivoting fallback.
+        reconstruction: ``"auto"`` (default) uses the face model's triangles
+            when it has them; otherwise ``"bpa+fill"`` (Ball-Pivoting, then
+            its holes closed), or ``"delaunay"`` for models of fewer than
+            :data:`~facemesh.reconstruct.MIN_SURFACE_POINTS` points. One of
+            :data:`~facemesh.reconstruct.SURFACE_METHODS` always reconstructs
+            with that method (:func:`facemesh.reconstruct.reconstruct_surface`);
+            ``"ball_pivoting"`` is accepted for ``"bpa"``.
+        ball_pivoting: settings of Ball-Pivoting (``bpa``, ``bpa+fill``).
+        poisson: settings of ``poisson``.
     """
 
     vertex_placement: str = "backprojected"
     texture_margin: float = 0.15
     reconstruction: str = "auto"
     ball_pivoting: BallPivotingSettings = field(default_factory=BallPivotingSettings)
+    poisson: PoissonSettings = field(default_factory=PoissonSettings)
 
     def __post_init__(self) -> None:
         if self.vertex_placement not in VERTEX_PLACEMENTS:
             raise InputError(f"vertex placement: expected one of {VERTEX_PLACEMENTS}, got {self.vertex_placement!r}")
-        if self.reconstruction not in ("auto", "ball_pivoting"):
-            raise InputError(f"reconstruction: expected 'auto' or 'ball_pivoting', got {self.reconstruction!r}")
+        if self.reconstruction == "ball_pivoting":  # the name before the other methods existed
+            object.__setattr__(self, "reconstruction", "bpa")
+        if self.reconstruction not in ("auto", *SURFACE_METHODS):
+            raise InputError(
+                f"reconstruction: expected one of {('auto', *SURFACE_METHODS)}, got {self.reconstruction!r}"
+            )
         if not (0.0 <= self.texture_margin <= 2.0):
             raise InputError(f"texture margin: expected 0..2, got {self.texture_margin}")
 
@@ -195,14 +211,30 @@ def build_face_mesh(
         pose = solve_head_pose(landmarks.points_px[:n], model.vertices_mm, camera)
     vertices = place_vertices(s.vertex_placement, landmarks, model, pose, camera)
     reconstruction: dict[str, Any] = {}
+    appended = np.zeros((0, 3))
     if model.triangles is not None and s.reconstruction == "auto":
         triangles = np.asarray(model.triangles)
     else:
-        rec = ball_pivoting(vertices, viewpoint_mm=(0.0, 0.0, 0.0), settings=s.ball_pivoting)
-        triangles = rec.triangles
+        method = s.reconstruction
+        if method == "auto":
+            method = SURFACE_METHODS[0] if n >= MIN_SURFACE_POINTS else "delaunay"
+        rec = reconstruct_surface(
+            vertices,
+            method,
+            viewpoint_mm=(0.0, 0.0, 0.0),
+            forward=-np.asarray(pose.rotation)[:, 2],  # the head frame's -z: out of the face
+            ball_pivoting_settings=s.ball_pivoting,
+            poisson_settings=s.poisson,
+        )
+        triangles, appended = rec.triangles, rec.appended_vertices_mm
         reconstruction = rec.as_metadata()
     texture, origin = crop_texture(image_rgb, landmarks.points_px, s.texture_margin)
     uv = pixels_to_uv(landmarks.points_px[:n], origin, (texture.shape[1], texture.shape[0]))
+    if len(appended):  # vertices the surface added after the landmarks' own: textured where they project
+        vertices = np.concatenate([vertices, appended])
+        uv = np.concatenate(
+            [uv, pixels_to_uv(project_points(appended, camera), origin, (texture.shape[1], texture.shape[0]))]
+        )
     return FaceMesh(
         vertices_mm=vertices,
         triangles=triangles,

@@ -1,16 +1,42 @@
 """Surface reconstruction for landmark models that have no triangulation.
 
 dlib's 68 points, ETH-XGaze's 50-point face model or a user's own detector
-give 3D points but no triangles. :func:`ball_pivoting` triangulates them with
-the Ball-Pivoting Algorithm (Bernardini et al. 1999) from Open3D or PyMeshLab,
-then maps the library's output back onto the *input* point indices (vertex i
+give 3D points but no triangles. :func:`reconstruct_surface` makes a surface
+of them with one of :data:`SURFACE_METHODS`:
+
+``bpa+fill`` (the default)
+    :func:`ball_pivoting` (the paper's method), then :func:`fill_to_outline`
+    closes every hole and notch inside the face outline (the points' convex
+    hull seen from the front) by ear clipping, without new vertices: the eye
+    and mouth openings and whatever the balls left open.
+``bpa``
+    Ball-Pivoting alone (Bernardini et al. 1999) from Open3D or PyMeshLab.
+    Its result keeps the holes the balls leave.
+``poisson``
+    Screened Poisson (Kazhdan and Hoppe 2013, PyMeshLab), cut to the
+    outline's front sheet. Its vertices are new: they are *appended* after the
+    landmark vertices (recorded in :attr:`Reconstruction.appended_vertices_mm`),
+    and the landmark vertices themselves are not used by its triangles.
+``delaunay``
+    The Delaunay triangulation of the points seen from the front: covers the
+    outline by construction; the planar fallback for models too sparse for a
+    surface (MPIIFaceGaze's 6 points).
+
+Which one is the default was measured (``benchmarks/bench_reconstruct.py``,
+docs/face_model.md): projected coverage against MediaPipe's own triangulation
+and eye patches rendered from each surface against those from the dense mesh.
+
+Every method maps its triangles back onto the *input* point indices (vertex i
 of the result is always landmark i: nothing is reordered, merged or removed),
 cleans the triangle list (:func:`clean_triangles`) and orients every triangle
 counter-clockwise seen from the camera (:func:`orient_triangles_toward`).
 
 All points are in the OpenCV camera frame, millimetres (see
 :mod:`facemesh.conventions`); the viewpoint is the camera centre, (0, 0, 0)
-by default.
+by default. "Seen from the front" means projected along ``forward``, the
+direction the face looks (the head frame's -z axis in the camera frame, which
+:func:`facemesh.mesh.build_face_mesh` passes from the head pose), so a turned
+head is triangulated as it would be frontal.
 """
 
 from __future__ import annotations
@@ -24,8 +50,15 @@ from numpy.typing import ArrayLike, NDArray
 from .types import InputError
 
 __all__ = [
+    "SURFACE_METHODS",
+    "MIN_SURFACE_POINTS",
     "BallPivotingSettings",
+    "PoissonSettings",
     "Reconstruction",
+    "reconstruct_surface",
+    "fill_to_outline",
+    "insert_points",
+    "frontal_coordinates",
     "ball_pivoting",
     "clean_triangles",
     "orient_triangles_toward",
@@ -33,6 +66,13 @@ __all__ = [
 ]
 
 _BACKENDS = ("open3d", "pymeshlab")
+
+#: The methods of :func:`reconstruct_surface`; the first is the default (the measured best).
+SURFACE_METHODS = ("bpa+fill", "bpa", "poisson", "delaunay")
+
+#: Ball-Pivoting and Poisson need a point cloud: with fewer points than this
+#: they are refused (``delaunay`` is the planar fallback, taken by ``auto``).
+MIN_SURFACE_POINTS = 20
 
 #: A triangle whose doubled area is below this fraction of its longest edge
 #: squared (about the sine of its largest angle's supplement) counts as zero-area.
@@ -107,46 +147,111 @@ class BallPivotingSettings:
 
 
 @dataclass(frozen=True)
-class Reconstruction:
-    """The result of :func:`ball_pivoting`.
+class PoissonSettings:
+    """How ``reconstruct_surface(..., "poisson")`` runs PyMeshLab's screened Poisson reconstruction.
 
     Attributes:
-        triangles: (M, 3) int64 indices into the input point array (vertex
-            index == landmark index), counter-clockwise seen from the viewpoint.
-            Read-only.
-        radii_mm: the ball radii used, millimetres, increasing.
-        backend: ``"open3d"`` or ``"pymeshlab"``.
+        depth: octree depth (PyMeshLab's ``depth``; 8 resolves about 1/256 of
+            the points' extent, well under a millimetre on a face).
+        normal_neighbours: nearest neighbours for each point's normal (PCA),
+            oriented toward the viewpoint.
+    """
+
+    depth: int = 8
+    normal_neighbours: int = 12
+
+    def __post_init__(self) -> None:
+        if not 4 <= int(self.depth) <= 12:
+            raise InputError(f"poisson depth: expected 4..12, got {self.depth}")
+        if int(self.normal_neighbours) < 3:
+            raise InputError(f"normal_neighbours: expected >= 3, got {self.normal_neighbours}")
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The result of :func:`reconstruct_surface` (or :func:`ball_pivoting`).
+
+    Attributes:
+        triangles: (M, 3) int64 indices into the input points followed by
+            :attr:`appended_vertices_mm` (vertex index == landmark index for
+            the first N), counter-clockwise seen from the viewpoint. Read-only.
+        radii_mm: the ball radii used, millimetres, increasing (``()`` for
+            ``poisson`` and ``delaunay``).
+        backend: ``"open3d"`` or ``"pymeshlab"`` (Ball-Pivoting, Poisson),
+            ``"scipy"`` (Delaunay).
         spacing_mm: median nearest-neighbour distance of the points, mm.
+        method: one of :data:`SURFACE_METHODS`.
+        surface_triangles: how many of the first rows of ``triangles`` the
+            method itself made; the rows after them were added by the
+            completion (``bpa+fill``: :func:`fill_to_outline`, then
+            :func:`insert_points`, which replaces a split triangle by new rows).
+        filled_loops: holes and notches the fill closed.
+        open_loops: holes or notches the fill could not close (a polygon that
+            folds over itself seen from the front); 0 on every face measured.
+        appended_vertices_mm: (K, 3) float64, mm, camera frame: vertices after
+            the N landmark vertices (``poisson``); (0, 3) otherwise. Read-only.
+        inserted_points: landmarks the surface spanned over, made vertices by
+            :func:`insert_points` (``bpa+fill``).
+        num_points: N, the number of input points (landmark vertices).
     """
 
     triangles: NDArray[np.int64]
     radii_mm: tuple[float, ...]
     backend: str
     spacing_mm: float = field(default=float("nan"))
+    method: str = "bpa"
+    surface_triangles: int = -1
+    filled_loops: int = 0
+    open_loops: int = 0
+    appended_vertices_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    inserted_points: int = 0
+    num_points: int = 0
 
     def __post_init__(self) -> None:
         t = np.array(self.triangles, dtype=np.int64, copy=True).reshape(-1, 3)
         t.setflags(write=False)
         object.__setattr__(self, "triangles", t)
         object.__setattr__(self, "radii_mm", tuple(float(r) for r in self.radii_mm))
+        if self.surface_triangles < 0:
+            object.__setattr__(self, "surface_triangles", len(t))
+        v = np.array(self.appended_vertices_mm, dtype=np.float64, copy=True).reshape(-1, 3)
+        v.setflags(write=False)
+        object.__setattr__(self, "appended_vertices_mm", v)
 
     @property
     def num_triangles(self) -> int:
         """Number of triangles M."""
         return len(self.triangles)
 
+    @property
+    def filled_triangles(self) -> int:
+        """Triangles added by the fill (the last rows of :attr:`triangles`)."""
+        return len(self.triangles) - self.surface_triangles
+
     def as_metadata(self) -> dict[str, Any]:
         """JSON-serialisable description, for :attr:`facemesh.types.FaceMesh.reconstruction`.
 
         Returns:
-            ``{"method": "ball_pivoting", "backend": ..., "radii_mm": [...], "num_triangles": M}``.
+            ``{"method", "backend", "num_triangles"}``; Ball-Pivoting adds
+            ``"radii_mm"``; ``bpa+fill`` adds ``"filled"``:
+            ``{"triangles": F, "first_row": M - F, "loops": L, "left_open": O,
+            "inserted_points": I}`` (the completion's triangles are the last F rows); ``poisson`` adds
+            ``"appended_vertices": {"count": K, "first_index": N}``.
         """
-        return {
-            "method": "ball_pivoting",
-            "backend": self.backend,
-            "radii_mm": [float(r) for r in self.radii_mm],
-            "num_triangles": int(len(self.triangles)),
-        }
+        meta: dict[str, Any] = {"method": self.method, "backend": self.backend, "num_triangles": len(self.triangles)}
+        if self.radii_mm:
+            meta["radii_mm"] = [float(r) for r in self.radii_mm]
+        if self.method == "bpa+fill":
+            meta["filled"] = {
+                "triangles": self.filled_triangles,
+                "first_row": self.surface_triangles,
+                "loops": self.filled_loops,
+                "left_open": self.open_loops,
+                "inserted_points": self.inserted_points,
+            }
+        if len(self.appended_vertices_mm):
+            meta["appended_vertices"] = {"count": len(self.appended_vertices_mm), "first_index": int(self.num_points)}
+        return meta
 
 
 # --------------------------------------------------------------------------- helpers
@@ -705,4 +810,509 @@ def ball_pivoting(
         if best is None or key > best:
             best, chosen = key, (tri, radii)
     assert chosen is not None
-    return Reconstruction(triangles=chosen[0], radii_mm=chosen[1], backend=settings.backend, spacing_mm=spacing)
+    return Reconstruction(
+        triangles=chosen[0], radii_mm=chosen[1], backend=settings.backend, spacing_mm=spacing, num_points=len(pts)
+    )
+
+
+# --------------------------------------------------------------------------- completion, other methods
+
+
+def _unit_forward(
+    points: NDArray[np.float64], viewpoint: NDArray[np.float64], forward: ArrayLike | None
+) -> NDArray[np.float64]:
+    f = viewpoint - points.mean(axis=0) if forward is None else _validate_point3(forward, "forward")
+    norm = float(np.linalg.norm(f))
+    if not norm > 0:
+        raise InputError("forward: expected a non-zero direction (the points' centroid is the viewpoint)")
+    return f / norm
+
+
+def frontal_coordinates(points_mm: ArrayLike, forward: ArrayLike) -> NDArray[np.float64]:
+    """The points seen from the front: orthographic projection along ``forward``.
+
+    Convention: the 2D axes ``(e1, e2)`` are orthonormal, perpendicular to
+    ``forward`` and right-handed with it (``e1 x e2 = forward``); ``e1`` is the
+    camera's x axis made perpendicular to ``forward`` (its y axis when x is
+    within 1e-6 of parallel). So a triangle whose right-hand normal points
+    along ``forward`` (toward a viewer in front of the face) has a positive
+    signed area in these coordinates, and for ``forward = (0, 0, -1)`` (a face
+    looking into the camera) ``(e1, e2) = (x, -y)``.
+
+    Args:
+        points_mm: (N, 3) float, mm, any frame.
+        forward: (3,) float, same frame: where the face looks (any length > 0).
+
+    Returns:
+        (N, 2) float64, mm.
+    """
+    p = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    f = _validate_point3(forward, "forward")
+    f = f / np.linalg.norm(f)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(f[0]) < 1.0 - 1e-6 else np.array([0.0, 1.0, 0.0])
+    e1 = ref - (ref @ f) * f
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(f, e1)
+    return p @ np.stack([e1, e2], axis=1)
+
+
+def _region_loops(q: NDArray[np.float64], boundary: list[tuple[int, int]], hull: list[int]) -> list[list[int]]:
+    """Loops around the uncovered region inside the outline, counter-clockwise in ``q``.
+
+    The region's edges are the surface's boundary edges reversed (the surface
+    lies on their right) and the outline's edges (counter-clockwise); an edge
+    present in both directions bounds nothing and cancels. At a vertex with
+    several ways on, the walk takes the sharpest left turn, so loops that
+    touch at a vertex come out as separate simple loops.
+    """
+    from collections import Counter
+
+    edges: Counter[tuple[int, int]] = Counter((b, a) for a, b in boundary)
+    edges.update((hull[i], hull[(i + 1) % len(hull)]) for i in range(len(hull)))
+    for (u, v), n in list(edges.items()):
+        back = edges.get((v, u), 0)
+        if n and back:
+            k = min(n, back)
+            edges[(u, v)] -= k
+            edges[(v, u)] -= k
+    out: dict[int, list[int]] = {}
+    for (u, v), n in sorted(edges.items()):
+        out.setdefault(u, []).extend([v] * n)
+    loops: list[list[int]] = []
+    budget = sum(len(ws) for ws in out.values())
+    while True:
+        starts = sorted(u for u, ws in out.items() if ws)
+        if not starts:
+            return loops
+        u0 = starts[0]
+        prev, cur = u0, out[u0].pop(0)
+        loop = [u0]
+        while cur != u0 and budget > 0:
+            budget -= 1
+            loop.append(cur)
+            ways = out.get(cur) or []
+            if not ways:
+                break  # not closed: cannot happen for a region bounded by loops
+            back = np.arctan2(*(q[prev] - q[cur])[::-1])
+            turn = [((back - np.arctan2(*(q[w] - q[cur])[::-1])) % (2 * np.pi) or 2 * np.pi, w) for w in ways]
+            nxt = min(turn)[1]
+            ways.remove(nxt)
+            prev, cur = cur, nxt
+        loops.append(loop)
+
+
+def _signed_area(xy: NDArray[np.float64]) -> float:
+    return 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+
+
+def _inside(polygon_xy: NDArray[np.float64], points_xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Even-odd rule: which points lie inside the polygon (points on its edges: either)."""
+    x, y = points_xy[:, 0:1], points_xy[:, 1:2]
+    x0, y0 = polygon_xy[:, 0], polygon_xy[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        at = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.asarray(np.sum(crosses & (x < at), axis=1) % 2 == 1)
+
+
+def _planar_subset(q: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Keep-mask of triangles whose interiors do not overlap seen from the front, smaller triangles first.
+
+    Overlap is tested by separating axes (the six edge normals of the two
+    triangles); triangles that only share an edge or a corner do not overlap.
+    A triangle facing backward (clockwise) is never kept.
+    """
+    m = len(tri)
+    keep = np.zeros(m, dtype=bool)
+    if m == 0:
+        return keep
+    xy = q[tri]  # (M, 3 corners, 2)
+    e = np.roll(xy, -1, axis=1) - xy
+    area2 = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
+    normals = np.stack([e[..., 1], -e[..., 0]], axis=-1)  # (M, 3 axes, 2)
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-300)
+    lo, hi = xy.min(axis=1), xy.max(axis=1)
+    eps = 1e-9 * max(float(np.ptp(q, axis=0).max()), 1e-12)
+    accepted: list[int] = []
+    for t in np.argsort(area2, kind="stable"):
+        if area2[t] <= 0:
+            continue
+        acc = np.asarray(accepted, dtype=np.int64)
+        near = acc[np.all(lo[acc] < hi[t] - eps, axis=1) & np.all(hi[acc] > lo[t] + eps, axis=1)]
+        if len(near):
+            # project both triangles on t's three axes and on each near triangle's three axes
+            on_t = [np.einsum("kd,njd->nkj", normals[t], xy[near]), np.einsum("kd,jd->kj", normals[t], xy[t])[None]]
+            on_o = [np.einsum("nkd,njd->nkj", normals[near], xy[near]), np.einsum("nkd,jd->nkj", normals[near], xy[t])]
+            separated = np.zeros(len(near), dtype=bool)
+            for other, this in (on_t, on_o):
+                gap = (other.max(axis=2) <= this.min(axis=2) + eps) | (other.min(axis=2) >= this.max(axis=2) - eps)
+                separated |= gap.any(axis=1)
+            if not separated.all():
+                continue
+        accepted.append(int(t))
+        keep[t] = True
+    return keep
+
+
+def _constrained_fill(
+    outer: list[int], islands: list[list[int]], interior: list[int], q: NDArray[np.float64]
+) -> list[tuple[int, int, int]] | None:
+    """Delaunay of a loop's vertices, its islands' and the unused points inside it, kept inside the region.
+
+    The result is accepted only when it is the region exactly: every loop
+    edge is a triangle edge and the triangles' area is the region's (a
+    constrained triangulation that happened to need no flip); else ``None``.
+    """
+    from scipy.spatial import Delaunay, QhullError
+
+    verts = np.array(sorted(set(outer).union(*islands, interior)), dtype=np.int64)
+    try:
+        simplices = verts[np.asarray(Delaunay(q[verts]).simplices, dtype=np.int64)]
+    except QhullError:
+        return None
+    centroid = q[simplices].mean(axis=1)
+    keep = _inside(q[outer], centroid)
+    for isl in islands:
+        keep &= ~_inside(q[isl], centroid)
+    tri = simplices[keep]
+    a, b, c = q[tri[:, 0]], q[tri[:, 1]], q[tri[:, 2]]
+    area2 = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+    tri[area2 < 0] = tri[area2 < 0][:, [0, 2, 1]]  # counter-clockwise, as the region's outer loop
+    region = _signed_area(q[outer]) - sum(abs(_signed_area(q[isl])) for isl in islands)
+    if abs(0.5 * float(np.abs(area2).sum()) - region) > 1e-9 * max(region, 1.0):
+        return None
+    have = {(min(u, v), max(u, v)) for t in tri.tolist() for u, v in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+    for lp in [outer, *islands]:
+        if any((min(u, v), max(u, v)) not in have for u, v in zip(lp, lp[1:] + lp[:1])):
+            return None
+    return [(int(x), int(y), int(z)) for x, y, z in tri]
+
+
+def fill_to_outline(
+    points_mm: ArrayLike, triangles: ArrayLike, forward: ArrayLike
+) -> tuple[NDArray[np.int64], NDArray[np.int64], int, int]:
+    """Triangles that close every hole and notch of a surface inside its outline, with no new vertex.
+
+    The outline is the convex hull of all the points seen from the front
+    (:func:`frontal_coordinates`). The uncovered region inside it is bounded
+    by the surface's boundary edges and the hull's edges (:func:`_region_loops`).
+    Each counter-clockwise loop is one piece of the region:
+
+    * with no unused point and no island of surface inside it, it is
+      triangulated by :func:`facemesh.face_models.triangulation.ear_clip`
+      (best-shaped ear first, the one ear clipper of the project);
+    * otherwise by the Delaunay triangulation of its vertices, its islands'
+      and the unused points inside it, kept inside the region, when that is
+      exactly the region (every loop edge present);
+    * else the islands' triangles are removed and the whole piece, the
+      islands' points included, is triangulated the same way; else by ear
+      clipping (the inner points stay unused).
+
+    A clockwise loop that no piece contains is a pocket of overlap left by a
+    fold: it is closed in its own sense, so the surface has no hole there.
+    The new triangles run every boundary edge the other way, so the result is
+    consistently oriented.
+
+    Args:
+        points_mm: (N, 3) float, mm, camera frame.
+        triangles: (M, 3) int, a consistently oriented edge-manifold surface,
+            counter-clockwise seen from the front, with no triangle facing
+            backward seen from the front.
+        forward: (3,) float: where the face looks.
+
+    Returns:
+        ``(surface, added, filled, left_open)``: the input triangles (M', 3)
+        int64 in their order, less those of islands that were re-triangulated;
+        (F, 3) int64 triangles to append; the number of loops closed; the
+        number left open.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    from .face_models.triangulation import ear_clip
+
+    pts = np.asarray(points_mm, dtype=np.float64)
+    tri = _validate_triangles(triangles, len(pts))
+    q = frontal_coordinates(pts, forward)
+    try:
+        corners = [int(i) for i in ConvexHull(q).vertices]  # counter-clockwise in 2D
+    except QhullError as exc:
+        raise InputError("points: all on one line seen from the front; no outline to fill") from exc
+    # the outline runs through every point on the hull's edges, not only its corners
+    tol = 1e-9 * max(float(np.ptp(q, axis=0).max()), 1e-12)
+    hull: list[int] = []
+    for a, b in zip(corners, corners[1:] + corners[:1]):
+        d = q[b] - q[a]
+        length2 = float(d @ d)
+        t = (q - q[a]) @ d / length2
+        off = np.abs((q - q[a]) @ np.array([-d[1], d[0]])) / np.sqrt(length2)
+        on = np.flatnonzero((off <= tol) & (t > 0) & (t < 1))
+        hull += [a] + [int(i) for i in on[np.argsort(t[on], kind="stable")]]
+    boundary: list[tuple[int, int]] = []
+    if len(tri):
+        ids, owner, n_edges = _edge_ids(tri)
+        count = np.bincount(ids, minlength=n_edges)
+        m = len(tri)
+        for slot in np.flatnonzero(count[ids] == 1):
+            t, k = int(owner[slot]), int(slot // m)
+            boundary.append((int(tri[t, k]), int(tri[t, (k + 1) % 3])))
+    loops = [lp for lp in _region_loops(q, boundary, hull) if len(lp) >= 3]
+    pieces = [lp for lp in loops if _signed_area(q[lp]) > 0]
+    inner = [lp for lp in loops if _signed_area(q[lp]) <= 0]
+    on_loops = {v for lp in loops for v in lp}
+    unused = np.array(sorted(set(range(len(pts))) - set(tri.ravel().tolist()) - on_loops), dtype=np.int64)
+    added: list[tuple[int, int, int]] = []
+    filled = left_open = 0
+    claimed: set[int] = set()
+    for piece in pieces:
+        poly = q[piece]
+        islands = []
+        for k, isl in enumerate(inner):
+            probe = [v for v in isl if v not in piece]
+            if k not in claimed and probe and _inside(poly, q[probe[:1]])[0]:
+                islands.append(isl)
+                claimed.add(k)
+        interior = unused[_inside(poly, q[unused])] if len(unused) else unused
+        for isl in islands:
+            interior = interior[~_inside(q[isl], q[interior])] if len(interior) else interior
+        patch = None
+        if islands or len(interior):
+            patch = _constrained_fill(piece, islands, interior.tolist(), q)
+        if patch is None and islands:
+            # drop the islands' triangles and triangulate the piece with their points inside it
+            isl_verts = {v for isl in islands for v in isl}
+            labels = _triangle_components(tri)
+            gone = np.isin(labels, np.unique(labels[np.isin(tri, list(isl_verts)).any(axis=1)]))
+            inside_piece = _inside(poly, q[np.unique(tri[gone])]) | np.isin(np.unique(tri[gone]), piece)
+            if inside_piece.all():
+                points_in = set(np.unique(tri[gone]).tolist()) - set(piece)
+                tri = tri[~gone]
+                islands = []
+                interior = np.array(sorted(set(interior.tolist()) | points_in), dtype=np.int64)
+                patch = _constrained_fill(piece, [], interior.tolist(), q)
+        if patch is None and not islands:
+            try:
+                patch = ear_clip(piece, q)
+            except InputError:
+                patch = None
+        if patch is None:
+            left_open += 1
+            continue
+        added.extend(patch)
+        filled += 1
+    for k, isl in enumerate(inner):
+        if k in claimed:
+            continue
+        try:
+            added.extend(ear_clip(isl, q))  # a fold's pocket: closed in its own (clockwise) sense
+            filled += 1
+        except InputError:
+            left_open += 1
+    return tri, np.array(added, dtype=np.int64).reshape(-1, 3), filled, left_open
+
+
+#: A point whose smallest barycentric coordinate in a triangle (seen from the
+#: front) is below this lies on the triangle's edge: the edge is split.
+_ON_EDGE_BARY = 1e-3
+
+
+def insert_points(
+    points_mm: ArrayLike, triangles: ArrayLike, forward: ArrayLike, indices: ArrayLike
+) -> tuple[NDArray[np.int64], int]:
+    """Make unused points vertices of the triangle (or edge) they lie on, seen from the front.
+
+    Ball-Pivoting can span a triangle over a landmark (the eye corners, on the
+    faces measured): the surface then misses that point's depth. Each point of
+    ``indices`` that lies inside a triangle seen from the front
+    (:func:`frontal_coordinates`) splits it into three; one on an edge (its
+    smallest barycentric coordinate below 1e-3) splits the edge's triangles in
+    two each. Windings are kept, so nothing folds.
+
+    Args:
+        points_mm: (N, 3) float, mm.
+        triangles: (M, 3) int, counter-clockwise seen from the front.
+        forward: (3,) float: where the face looks.
+        indices: (K,) int, the points to insert (in this order).
+
+    Returns:
+        ``(triangles, inserted)``: (M + 2 x inserted, 3) int64, the rows not
+        split in their order then the new ones; how many points were inserted
+        (points outside every triangle are skipped).
+    """
+    pts = np.asarray(points_mm, dtype=np.float64)
+    tri = [tuple(int(v) for v in t) for t in _validate_triangles(triangles, len(pts)).tolist()]
+    q = frontal_coordinates(pts, forward)
+    inserted = 0
+    for p in np.asarray(indices, dtype=np.int64).reshape(-1).tolist():
+        arr = np.array(tri, dtype=np.int64).reshape(-1, 3)
+        if not len(arr):
+            break
+        a, b, c = q[arr[:, 0]], q[arr[:, 1]], q[arr[:, 2]]
+        den = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wb = ((q[p] - a)[:, 0] * (c - a)[:, 1] - (q[p] - a)[:, 1] * (c - a)[:, 0]) / den
+            wc = ((b - a)[:, 0] * (q[p] - a)[:, 1] - (b - a)[:, 1] * (q[p] - a)[:, 0]) / den
+        bary = np.stack([1.0 - wb - wc, wb, wc], axis=1)
+        ok = np.isfinite(bary).all(axis=1) & (den > 0) & (bary.min(axis=1) >= -_ON_EDGE_BARY) & ~(arr == p).any(axis=1)
+        if not ok.any():
+            continue
+        t = int(np.flatnonzero(ok)[np.argmax(bary[ok].min(axis=1))])
+        x, y, z = tri[t]
+        k = int(np.argmin(bary[t]))
+        if bary[t, k] >= _ON_EDGE_BARY:
+            tri[t : t + 1] = []
+            tri += [(x, y, p), (y, z, p), (z, x, p)]
+        else:
+            # on the edge opposite corner k: split it in this triangle and in its neighbour
+            u, v = (x, y, z)[(k + 1) % 3], (x, y, z)[(k + 2) % 3]
+            w = (x, y, z)[k]
+            tri[t : t + 1] = []
+            tri += [(u, p, w), (p, v, w)]
+            for j, other in enumerate(tri[:-2]):
+                if (v, u) in ((other[0], other[1]), (other[1], other[2]), (other[2], other[0])):
+                    o = next(vv for vv in other if vv not in (u, v))
+                    tri[j : j + 1] = []
+                    tri += [(v, p, o), (p, u, o)]
+                    break
+        inserted += 1
+    return np.array(tri, dtype=np.int64).reshape(-1, 3), inserted
+
+
+def _delaunay(points: NDArray[np.float64], forward: NDArray[np.float64]) -> NDArray[np.int64]:
+    from scipy.spatial import Delaunay, QhullError
+
+    q = frontal_coordinates(points, forward)
+    try:
+        tri = np.asarray(Delaunay(q).simplices, dtype=np.int64)
+    except QhullError as exc:
+        raise InputError("points: all on one line seen from the front; no surface to triangulate") from exc
+    a, b, c = q[tri[:, 0]], q[tri[:, 1]], q[tri[:, 2]]
+    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    tri[cw] = tri[cw][:, [0, 2, 1]]  # counter-clockwise seen from the front
+    return tri
+
+
+def _poisson(
+    points: NDArray[np.float64],
+    viewpoint: NDArray[np.float64],
+    forward: NDArray[np.float64],
+    settings: PoissonSettings,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Screened Poisson, cut to its front sheet inside the outline: (K, 3) new vertices, (M, 3) triangles into them."""
+    from scipy.spatial import Delaunay
+
+    pymeshlab = _import_pymeshlab()
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+    k = min(int(settings.normal_neighbours), len(points))
+    ms.compute_normal_for_point_clouds(k=k, smoothiter=0, flipflag=True, viewpos=viewpoint)
+    ms.generate_surface_reconstruction_screened_poisson(depth=int(settings.depth), preclean=True)
+    m = ms.current_mesh()
+    v = np.asarray(m.vertex_matrix(), dtype=np.float64)
+    f = np.asarray(m.face_matrix(), dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    # keep triangles inside the outline, facing the front, on the sheet nearest the viewer
+    outline = Delaunay(frontal_coordinates(points, forward))
+    inside = outline.find_simplex(frontal_coordinates(v, forward)) >= 0
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    facing = np.cross(b - a, c - a) @ forward
+    f = f[inside[f].all(axis=1) & (facing > 0)]
+    f = clean_triangles(f, len(v), min_component_fraction=1.0, points=v)  # the largest sheet
+    used = np.unique(f)
+    lut = np.full(len(v), -1, dtype=np.int64)
+    lut[used] = np.arange(len(used))
+    return v[used], lut[f]
+
+
+def reconstruct_surface(
+    points_mm: ArrayLike,
+    method: str = SURFACE_METHODS[0],
+    *,
+    viewpoint_mm: ArrayLike = (0.0, 0.0, 0.0),
+    forward: ArrayLike | None = None,
+    ball_pivoting_settings: BallPivotingSettings = BallPivotingSettings(),
+    poisson_settings: PoissonSettings = PoissonSettings(),
+) -> Reconstruction:
+    """A surface through landmark points that have no triangulation (see the module docstring for the methods).
+
+    Args:
+        points_mm: (N, 3) float, N >= 4 (>= :data:`MIN_SURFACE_POINTS` for
+            ``bpa``, ``bpa+fill`` and ``poisson``), mm, OpenCV camera frame.
+        method: one of :data:`SURFACE_METHODS`.
+        viewpoint_mm: (3,) float, camera frame mm: where the surface is seen
+            from (the camera centre); triangles come counter-clockwise seen from it.
+        forward: (3,) float, camera frame: where the face looks (the head
+            frame's -z axis), for the frontal view that ``bpa+fill`` and
+            ``delaunay`` triangulate in. Default: from the points' centroid
+            toward the viewpoint.
+        ball_pivoting_settings: for ``bpa`` and ``bpa+fill``.
+        poisson_settings: for ``poisson``.
+
+    Returns:
+        A :class:`Reconstruction`; its triangles index ``points_mm`` (then,
+        for ``poisson``, its appended vertices).
+
+    Raises:
+        InputError: malformed points, an unknown method, or too few points for the method.
+        ImportError: the backend library is missing (with an install hint).
+    """
+    if method not in SURFACE_METHODS:
+        raise InputError(f"surface method: expected one of {SURFACE_METHODS}, got {method!r}")
+    pts = _validate_points(points_mm)
+    view = _validate_point3(viewpoint_mm, "viewpoint_mm")
+    fwd = _unit_forward(pts, view, forward)
+    if method != "delaunay" and len(pts) < MIN_SURFACE_POINTS:
+        raise InputError(
+            f"points: {len(pts)} are too few for {method} (it needs a point cloud of at least "
+            f"{MIN_SURFACE_POINTS}); 'delaunay' triangulates them as seen from the front (a planar fallback)"
+        )
+    spacing = median_spacing(pts)
+    if method in ("bpa", "bpa+fill"):
+        rec = ball_pivoting(pts, view, ball_pivoting_settings)
+        if method == "bpa":
+            return rec
+        surface = np.asarray(rec.triangles)
+        # Seen from the front a face is a height field: triangles facing backward or overlapping
+        # others are folds (Ball-Pivoting across the chin or the lips), which would cover part of
+        # the face twice. Keep a subset that covers it once, smaller triangles first.
+        surface = surface[_planar_subset(frontal_coordinates(pts, fwd), surface)]
+        surface = clean_triangles(surface, len(pts), min_component_fraction=0.0)
+        surface, added, filled, left_open = fill_to_outline(pts, surface, fwd)
+        tri = np.concatenate([surface, added])
+        unused = np.setdiff1d(np.arange(len(pts)), tri)
+        tri, inserted = insert_points(pts, tri, fwd, unused)
+        # earlier rows win where an edge would be over-used, so the surface's own triangles are kept
+        tri = clean_triangles(tri, len(pts), min_component_fraction=0.0)
+        kept_surface = int(np.sum(np.isin(_row_keys(tri, len(pts)), _row_keys(surface, len(pts)))))
+        tri = orient_triangles_toward(pts, tri, view)
+        return Reconstruction(
+            triangles=tri,
+            radii_mm=rec.radii_mm,
+            backend=rec.backend,
+            spacing_mm=spacing,
+            method=method,
+            surface_triangles=kept_surface,
+            filled_loops=filled,
+            open_loops=left_open,
+            inserted_points=inserted,
+            num_points=len(pts),
+        )
+    if method == "delaunay":
+        tri = clean_triangles(_delaunay(pts, fwd), len(pts), min_component_fraction=0.0, points=pts)
+        tri = orient_triangles_toward(pts, tri, view)
+        return Reconstruction(tri, (), "scipy", spacing, method="delaunay", num_points=len(pts))
+    new_v, new_t = _poisson(pts, view, fwd, poisson_settings)
+    if len(new_t) == 0:
+        raise InputError("poisson: the reconstruction left no surface in front of the points")
+    all_v = np.concatenate([pts, new_v])
+    tri = orient_triangles_toward(all_v, new_t + len(pts), view)
+    return Reconstruction(
+        tri, (), "pymeshlab", spacing, method="poisson", appended_vertices_mm=new_v, num_points=len(pts)
+    )
+
+
+def _row_keys(tri: NDArray[np.int64], n: int) -> NDArray[np.int64]:
+    """One integer per triangle of indices below ``n``, the same for any order of its three indices."""
+    s = np.sort(np.asarray(tri, dtype=np.int64).reshape(-1, 3), axis=1)
+    return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]

@@ -93,8 +93,24 @@ def test_user_landmarks_with_ball_pivoting(mpii_sample, tmp_path, detector):
     )
     assert rc == 0
     mesh = load(glb)
-    assert mesh.reconstruction["method"] == "ball_pivoting" and mesh.reconstruction["radii_mm"]
+    assert mesh.reconstruction["method"] == "bpa+fill" and mesh.reconstruction["radii_mm"]
     assert mesh.landmarks.model_name == "user:lm.npy"
+    # six of them are too few for Ball-Pivoting: one line, exit 2, nothing written
+    six = [33, 133, 362, 263, 61, 291]
+    np.save(tmp_path / "lm6.npy", pts[six])
+    np.save(tmp_path / "model6.npy", builtin_face_model().vertices_mm[six])
+    rc = main(
+        [
+            "build",
+            str(_mpii_image(mpii_sample)),
+            "-o",
+            str(tmp_path / "six.glb"),
+            "--landmarks",
+            str(tmp_path / "lm6.npy"),
+        ]
+        + ["--face-model", str(tmp_path / "model6.npy"), "--keypoints", "mpii6", "--reconstruct", "bpa"]
+    )
+    assert rc == 2 and not (tmp_path / "six.glb").exists()
 
 
 def _write_png(path, img):

@@ -276,3 +276,72 @@ def test_a_mesh_records_its_key_points(tmp_path):
     assert mesh.model_keypoints == KEYPOINTS["dlib68"]
     facemesh.save(mesh, tmp_path / "f.glb")
     assert facemesh.load(tmp_path / "f.glb").model_keypoints == KEYPOINTS["dlib68"]
+
+
+# --------------------------------------------------------------------------- sparse layouts (dlib 68, ETH-XGaze 50)
+
+
+def _dlib68_mirror() -> list[int]:
+    """dlib's left-right partner of each of its 68 points, written out from the layout's definition."""
+    m = list(range(68))
+    for i in range(17):
+        m[i] = 16 - i  # jaw
+    for i in range(10):
+        m[17 + i] = 26 - i  # eyebrows
+    for i in range(5):
+        m[31 + i] = 35 - i  # nostrils
+    pairs = [(36, 45), (37, 44), (38, 43), (39, 42), (40, 47), (41, 46)]  # eyes
+    pairs += [(48, 54), (49, 53), (50, 52), (55, 59), (56, 58), (60, 64), (61, 63), (65, 67)]  # lips
+    for a, b in pairs:
+        m[a], m[b] = b, a
+    return m
+
+
+def test_dlib68_map_commutes_with_the_mirror_and_keeps_the_key_points():
+    from facemesh.face_models import KEYPOINTS
+    from facemesh.face_models.layouts import DLIB68_TO_ETH50, MEDIAPIPE_TO_DLIB68, MEDIAPIPE_TO_ETH50
+
+    m68 = np.asarray(MEDIAPIPE_TO_DLIB68)
+    assert len(m68) == 68 and len(set(m68.tolist())) == 68 and m68.max() < 468
+    mirror = mirror_permutation()
+    assert [int(mirror[m68[i]]) for i in range(68)] == [int(m68[j]) for j in _dlib68_mirror()]
+    # the dlib key points are MediaPipe's eye and mouth corners
+    mp, dl = KEYPOINTS["mediapipe"], KEYPOINTS["dlib68"]
+    assert [int(m68[i]) for i in dl.face_indices] == list(mp.face_indices)
+    # ETH-XGaze's 50: the chin, then dlib 17-59 and the inner lips but their corners
+    assert DLIB68_TO_ETH50 == (8, *range(17, 60), 61, 62, 63, 65, 66, 67)
+    eth = KEYPOINTS["eth50"]
+    assert [DLIB68_TO_ETH50[i] for i in eth.face_indices] == list(dl.face_indices)
+    assert MEDIAPIPE_TO_ETH50 == tuple(int(m68[i]) for i in DLIB68_TO_ETH50)
+
+
+def test_eth50_subset_fits_eth_xgazes_own_face_model(shared_data):
+    """ETH-XGaze's face model (another face, its own frame) against the built-in model at the mapped
+    indices: a similarity fit within 6 mm RMS, and dropping the inner mouth corners (60, 64) fits
+    better than dropping any other symmetric pair: the 50 rows are what the map says."""
+    from facemesh.face_models.layouts import MEDIAPIPE_TO_DLIB68
+
+    path = shared_data / "gaze" / "calibrations" / "eth_xgaze_face_model.txt"
+    eth = np.loadtxt(path)
+    assert eth.shape == (50, 3)
+    v = builtin_face_model().vertices_mm[np.asarray(MEDIAPIPE_TO_DLIB68)]
+
+    def rms_without(pair):
+        keep = [8] + [i for i in range(17, 68) if i not in pair]
+        return _rms_after_similarity(v[keep], eth)
+
+    best = rms_without((60, 64))
+    assert best < 6.0
+    others = [(48, 54), (61, 63), (65, 67), (49, 53), (55, 59), (62, 66)]
+    assert all(best < rms_without(p) for p in others)
+
+
+def test_sparse_face_model_takes_the_built_in_points():
+    from facemesh.face_models.layouts import sparse_face_model
+    from facemesh.types import InputError
+
+    model, idx = sparse_face_model("dlib68")
+    assert model.num_points == 68 and model.triangles is None and model.keypoints is not None
+    assert np.array_equal(model.vertices_mm, builtin_face_model().vertices_mm[idx])
+    with pytest.raises(InputError, match="layout"):
+        sparse_face_model("dlib5")

@@ -8,6 +8,7 @@ validator), never with facemesh's own conversion functions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -440,7 +441,18 @@ def _validator_dir() -> Path:
     return Path(env) if env else REPO_ROOT / ".tools" / "node" / "node_modules" / "gltf-validator"
 
 
-@pytest.mark.parametrize("case", ["png", "jpeg", "points", "atlas"])
+def _reconstructed_mesh(method: str) -> FaceMesh:
+    """The built-in model's 468 points 500 mm away, triangulated by a surface method (Poisson appends vertices)."""
+    from facemesh import builtin_face_model
+    from facemesh.reconstruct import reconstruct_surface
+
+    pts = builtin_face_model().vertices_mm + np.array([0.0, 0.0, 500.0])
+    rec = reconstruct_surface(pts, method, forward=(0.0, 0.0, -1.0))
+    mesh = make_mesh(vertices_mm=np.concatenate([pts, rec.appended_vertices_mm]), triangles=rec.triangles)
+    return dataclasses.replace(mesh, reconstruction=rec.as_metadata())
+
+
+@pytest.mark.parametrize("case", ["png", "jpeg", "points", "atlas", "bpa+fill", "poisson"])
 def test_khronos_validator(tmp_path: Path, case: str) -> None:
     """The Khronos glTF validator reports no errors and no warnings."""
     node = shutil.which("node")
@@ -459,6 +471,10 @@ def test_khronos_validator(tmp_path: Path, case: str) -> None:
         from facemesh.atlas import atlas_mesh
 
         save_glb(atlas_mesh(make_mesh()), path)
+    elif case in ("bpa+fill", "poisson"):
+        mesh = _reconstructed_mesh(case)
+        save_glb(mesh, path)
+        assert load_glb(path).reconstruction == mesh.reconstruction
     else:
         save_glb(make_mesh(), path, texture_format=case)
     proc = subprocess.run(

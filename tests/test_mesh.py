@@ -1,5 +1,6 @@
 """From landmarks to a textured mesh: vertex placements, texture, and a render of the original view."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -93,10 +94,33 @@ def test_ball_pivoting_fallback_without_triangles(mpii):
     img, cam, face = mpii
     no_tri = FaceModel(name="points only", vertices_mm=builtin_face_model().vertices_mm)
     mesh = build_face_mesh(img, face, no_tri, cam)
-    assert mesh.reconstruction["method"] == "ball_pivoting"
+    assert mesh.reconstruction["method"] == "bpa+fill"  # the default completion
     assert len(mesh.reconstruction["radii_mm"]) >= 1
-    assert max(edge_use_counts(mesh.triangles).values()) <= 2
-    assert len(np.unique(mesh.triangles)) > 0.9 * 468
+    assert mesh.reconstruction["filled"]["left_open"] == 0
+    counts = edge_use_counts(mesh.triangles)
+    assert max(counts.values()) <= 2
+    assert len(np.unique(mesh.triangles)) == 468
+    # one boundary cycle: the face contour, no hole inside it (a disc: V - E + F = 1)
+    assert 468 - len(counts) + mesh.num_triangles == 1
+    # Poisson appends its own vertices after the 468 landmark vertices, textured where they project
+    poisson = build_face_mesh(img, face, no_tri, cam, BuildSettings(reconstruction="poisson"))
+    extra = poisson.reconstruction["appended_vertices"]
+    assert extra["first_index"] == 468 and poisson.num_vertices == 468 + extra["count"]
+    assert np.allclose(poisson.vertices_mm[:468], mesh.vertices_mm) and poisson.uv.shape == (poisson.num_vertices, 2)
+    # a model of 6 points: too few for a surface; auto takes the planar fallback
+    six_idx = [33, 133, 362, 263, 61, 291]
+    six = FaceModel(name="six", vertices_mm=builtin_face_model().vertices_mm[six_idx])
+    few = build_face_mesh(img, dataclasses.replace(face, points_px=face.points_px[six_idx], points_3d=None), six, cam)
+    assert few.reconstruction["method"] == "delaunay" and few.num_triangles >= 4
+    with pytest.raises(InputError, match="too few"):
+        build_face_mesh(
+            img,
+            dataclasses.replace(face, points_px=face.points_px[six_idx], points_3d=None),
+            six,
+            cam,
+            BuildSettings(reconstruction="bpa"),
+        )
+    assert BuildSettings(reconstruction="ball_pivoting").reconstruction == "bpa"  # the former name
 
 
 def test_mismatched_inputs(mpii):

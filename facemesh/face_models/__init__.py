@@ -76,6 +76,8 @@ KEYPOINTS = {
     "mpii6": FaceKeypoints(right_eye=(0, 1), left_eye=(2, 3), mouth=(4, 5)),
     # dlib / iBUG 68-point layout (0-based).
     "dlib68": FaceKeypoints(right_eye=(36, 39), left_eye=(42, 45), mouth=(48, 54)),
+    # ETH-XGaze's 50-point face model (dlib's 68 without the jaw but the chin, nor the inner mouth corners).
+    "eth50": FaceKeypoints(right_eye=(20, 23), left_eye=(26, 29), mouth=(32, 38)),
 }
 
 
