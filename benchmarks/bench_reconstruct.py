@@ -34,6 +34,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py: the photos every benchmark uses)
+
 from facemesh.build import fit_face, mesh_for_fit  # noqa: E402
 from facemesh.camera import camera_for_image  # noqa: E402
 from facemesh.conventions import pixels_to_uv  # noqa: E402
@@ -45,17 +47,7 @@ from facemesh.pose import project_points  # noqa: E402
 from facemesh.reconstruct import SURFACE_METHODS, Reconstruction, frontal_coordinates, reconstruct_surface  # noqa: E402
 from facemesh.types import FaceMesh  # noqa: E402
 
-PHOTOS = (
-    "astronaut.png",
-    "business-person.png",
-    "sergey.png",
-    "pexels/image00.jpg",
-    "pexels/image01.jpg",
-    "aflw_deca/AFLW2000_image00202.jpg",
-    "aflw_deca/AFLW2000_image00302.jpg",
-    "aflw_deca/AFLW2000_image00408.jpg",
-    "aflw_deca/AFLW2000_image00480.jpg",
-)
+PHOTOS = TRAIN_PHOTOS  # the 9 single-face photos of ../shared/data/faces
 #: (yaw, pitch) degrees of the rendered head poses; None: the photo's own pose.
 POSES: tuple[tuple[float, float] | None, ...] = (None, (20, 0), (-20, 0), (0, 20), (0, -20), (0, 30))
 LAYOUTS = {"468": np.arange(468)} | {k: np.asarray(v[0]) for k, v in SPARSE_LAYOUTS.items()}
