@@ -38,13 +38,13 @@ from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py: the photos
 
 from facemesh.build import fit_face, mesh_for_fit  # noqa: E402
 from facemesh.camera import camera_for_image  # noqa: E402
-from facemesh.conventions import pixels_to_uv  # noqa: E402
+from facemesh.conventions import face_forward, frontal_coordinates, pixels_to_uv  # noqa: E402
 from facemesh.face_models.layouts import SPARSE_LAYOUTS  # noqa: E402
 from facemesh.face_models.triangulation import boundary_loops  # noqa: E402
 from facemesh.io import load_image_rgb  # noqa: E402
 from facemesh.landmarks.mediapipe import MediaPipeFaceMesh  # noqa: E402
 from facemesh.pose import project_points  # noqa: E402
-from facemesh.reconstruct import SURFACE_METHODS, Reconstruction, frontal_coordinates, reconstruct_surface  # noqa: E402
+from facemesh.reconstruct import SURFACE_METHODS, Reconstruction, reconstruct_surface  # noqa: E402
 from facemesh.types import FaceMesh  # noqa: E402
 
 PHOTOS = TRAIN_PHOTOS  # the 9 single-face photos of ../shared/data/faces
@@ -129,7 +129,7 @@ def main() -> None:
             fit = fit_face(image, camera_for_image(None, w, h, warn=False), det, source=name)
         dense = mesh_for_fit(fit)
         asset = face_asset(dense)
-        forward = -np.asarray(dense.pose.rotation)[:, 2]
+        forward = face_forward(dense.pose.rotation)
         v_dense = np.asarray(dense.vertices_mm)
         q = frontal_coordinates(v_dense, forward)
         lo = q.min(axis=0) - 5.0

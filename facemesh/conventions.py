@@ -91,6 +91,8 @@ __all__ = [
     "mirror_pitchyaw",
     "mirrored_columns",
     "rotation_to_head_pitchyaw",
+    "face_forward",
+    "frontal_coordinates",
     "rotation_yaw",
     "rotation_pitch",
     "rotation_from_yaw_pitch",
@@ -295,10 +297,60 @@ def rotation_to_head_pitchyaw(rotation_head_to_camera: ArrayLike) -> NDArray[np.
     Returns:
         (..., 2) float64 radians: ``pitch = asin(R[1, 2])``, ``yaw = atan2(R[0, 2], R[2, 2])``.
     """
+    return vector_to_pitchyaw(face_forward(rotation_head_to_camera))
+
+
+def face_forward(rotation_head_to_camera: ArrayLike) -> NDArray[np.float64]:
+    """The direction the face points, in the camera frame: ``-R[:, 2]`` (the head frame's -z axis).
+
+    Convention: the head frame's z axis points into the head (see the module
+    docstring), so the face looks along -z; the identity rotation gives
+    ``(0, 0, -1)``, a face looking into the camera.
+
+    Args:
+        rotation_head_to_camera: (..., 3, 3) float, head frame -> camera frame.
+
+    Returns:
+        (..., 3) float64 unit vectors, camera frame.
+    """
     r = np.asarray(rotation_head_to_camera, dtype=np.float64)
     if r.shape[-2:] != (3, 3):
         raise ValueError(f"rotation_head_to_camera: expected shape (..., 3, 3), got {r.shape}")
-    return vector_to_pitchyaw(-r[..., :, 2])
+    return np.asarray(-r[..., :, 2])
+
+
+def frontal_coordinates(points: ArrayLike, forward: ArrayLike) -> NDArray[np.float64]:
+    """Points seen from the front: orthographic projection along ``forward`` onto 2D axes ``(e1, e2)``.
+
+    Convention: ``e1`` and ``e2`` are orthonormal, perpendicular to
+    ``forward`` and right-handed with it (``e1 x e2 = forward / |forward|``);
+    ``e1`` is the frame's x axis made perpendicular to ``forward`` (its y axis
+    when x is within 1e-6 of parallel). So a triangle whose right-hand normal
+    points along ``forward`` (toward a viewer in front of the face) has a
+    positive signed area in these coordinates, and for ``forward = (0, 0, -1)``
+    (:func:`face_forward` of a face looking into the camera) ``(e1, e2) = (x, -y)``.
+
+    Args:
+        points: (N, 3) float, any unit, any frame.
+        forward: (3,) float, same frame: where the face looks (any length > 0).
+
+    Returns:
+        (N, 2) float64, the unit of ``points``.
+
+    Raises:
+        ValueError: ``forward`` is not 3 finite numbers with a length > 0.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(forward, dtype=np.float64).reshape(-1)
+    norm = float(np.linalg.norm(f)) if f.shape == (3,) and np.all(np.isfinite(f)) else 0.0
+    if not norm > 0:
+        raise ValueError(f"forward: expected 3 finite numbers, not all zero, got {np.asarray(forward).tolist()}")
+    f = f / norm
+    ref = np.array([1.0, 0.0, 0.0]) if abs(f[0]) < 1.0 - 1e-6 else np.array([0.0, 1.0, 0.0])
+    e1 = ref - (ref @ f) * f
+    e1 /= np.linalg.norm(e1)
+    e2 = _cross3(f, e1)
+    return p @ np.stack([e1, e2], axis=1)
 
 
 def _rotations(

@@ -35,7 +35,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .conventions import gltf_to_opencv_directions, gltf_uv_to_bottom_left_uv, opencv_to_gltf_points, pixels_to_uv
+from .conventions import (
+    face_forward,
+    gltf_to_opencv_directions,
+    gltf_uv_to_bottom_left_uv,
+    opencv_to_gltf_points,
+    pixels_to_uv,
+)
 from .pose import project_points, solve_head_pose, undistort_to_rays
 from .reconstruct import (
     MIN_SURFACE_POINTS,
@@ -222,7 +228,7 @@ def build_face_mesh(
             vertices,
             method,
             viewpoint_mm=(0.0, 0.0, 0.0),
-            forward=-np.asarray(pose.rotation)[:, 2],  # the head frame's -z: out of the face
+            forward=face_forward(pose.rotation),
             ball_pivoting_settings=s.ball_pivoting,
             poisson_settings=s.poisson,
         )

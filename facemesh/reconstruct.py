@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .conventions import frontal_coordinates
 from .types import InputError
 
 __all__ = [
@@ -58,7 +59,6 @@ __all__ = [
     "reconstruct_surface",
     "fill_to_outline",
     "insert_points",
-    "frontal_coordinates",
     "ball_pivoting",
     "clean_triangles",
     "orient_triangles_toward",
@@ -828,32 +828,12 @@ def _unit_forward(
     return f / norm
 
 
-def frontal_coordinates(points_mm: ArrayLike, forward: ArrayLike) -> NDArray[np.float64]:
-    """The points seen from the front: orthographic projection along ``forward``.
-
-    Convention: the 2D axes ``(e1, e2)`` are orthonormal, perpendicular to
-    ``forward`` and right-handed with it (``e1 x e2 = forward``); ``e1`` is the
-    camera's x axis made perpendicular to ``forward`` (its y axis when x is
-    within 1e-6 of parallel). So a triangle whose right-hand normal points
-    along ``forward`` (toward a viewer in front of the face) has a positive
-    signed area in these coordinates, and for ``forward = (0, 0, -1)`` (a face
-    looking into the camera) ``(e1, e2) = (x, -y)``.
-
-    Args:
-        points_mm: (N, 3) float, mm, any frame.
-        forward: (3,) float, same frame: where the face looks (any length > 0).
-
-    Returns:
-        (N, 2) float64, mm.
-    """
-    p = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+def _frontal(points: NDArray[np.float64], forward: ArrayLike) -> NDArray[np.float64]:
+    """:func:`~facemesh.conventions.frontal_coordinates`, ``forward`` checked as the other inputs are (InputError)."""
     f = _validate_point3(forward, "forward")
-    f = f / np.linalg.norm(f)
-    ref = np.array([1.0, 0.0, 0.0]) if abs(f[0]) < 1.0 - 1e-6 else np.array([0.0, 1.0, 0.0])
-    e1 = ref - (ref @ f) * f
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(f, e1)
-    return p @ np.stack([e1, e2], axis=1)
+    if not float(np.linalg.norm(f)) > 0:
+        raise InputError("forward: expected a non-zero direction, got (0, 0, 0)")
+    return frontal_coordinates(points, f)
 
 
 def _region_loops(q: NDArray[np.float64], boundary: list[tuple[int, int]], hull: list[int]) -> list[list[int]]:
@@ -995,7 +975,7 @@ def fill_to_outline(
     """Triangles that close every hole and notch of a surface inside its outline, with no new vertex.
 
     The outline is the convex hull of all the points seen from the front
-    (:func:`frontal_coordinates`). The uncovered region inside it is bounded
+    (:func:`facemesh.conventions.frontal_coordinates`). The uncovered region inside it is bounded
     by the surface's boundary edges and the hull's edges (:func:`_region_loops`).
     Each counter-clockwise loop is one piece of the region:
 
@@ -1033,7 +1013,7 @@ def fill_to_outline(
 
     pts = np.asarray(points_mm, dtype=np.float64)
     tri = _validate_triangles(triangles, len(pts))
-    q = frontal_coordinates(pts, forward)
+    q = _frontal(pts, forward)
     try:
         corners = [int(i) for i in ConvexHull(q).vertices]  # counter-clockwise in 2D
     except QhullError as exc:
@@ -1124,7 +1104,7 @@ def insert_points(
     Ball-Pivoting can span a triangle over a landmark (the eye corners, on the
     faces measured): the surface then misses that point's depth. Each point of
     ``indices`` that lies inside a triangle seen from the front
-    (:func:`frontal_coordinates`) splits it into three; one on an edge (its
+    (:func:`facemesh.conventions.frontal_coordinates`) splits it into three; one on an edge (its
     smallest barycentric coordinate below 1e-3) splits the edge's triangles in
     two each. Windings are kept, so nothing folds.
 
@@ -1141,7 +1121,7 @@ def insert_points(
     """
     pts = np.asarray(points_mm, dtype=np.float64)
     tri = [tuple(int(v) for v in t) for t in _validate_triangles(triangles, len(pts)).tolist()]
-    q = frontal_coordinates(pts, forward)
+    q = _frontal(pts, forward)
     inserted = 0
     for p in np.asarray(indices, dtype=np.int64).reshape(-1).tolist():
         arr = np.array(tri, dtype=np.int64).reshape(-1, 3)

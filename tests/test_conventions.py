@@ -273,3 +273,30 @@ def test_camera_rig_frames_hand_values():
     np.testing.assert_allclose(cv.rig_to_camera_points(cv.camera_to_rig_points(pts, r, c), r, c), pts, atol=1e-9)
     with pytest.raises(ValueError, match="rotation_rig_to_camera"):
         cv.camera_to_rig_points(pts, np.eye(2), c)
+
+
+def test_face_forward_hand_values():
+    # identity: the face looks into the camera, along -z
+    np.testing.assert_allclose(cv.face_forward(np.eye(3)), [0, 0, -1], atol=0)
+    # the paper's R(y, p) turns a frontal face to (-sin y, -sin p cos y, -cos p cos y)
+    y, p = np.radians(20.0), np.radians(30.0)
+    expected = [-np.sin(y), -np.sin(p) * np.cos(y), -np.cos(p) * np.cos(y)]
+    np.testing.assert_allclose(cv.face_forward(cv.rotation_from_yaw_pitch(y, p)), expected, atol=1e-15)
+    assert cv.face_forward(np.stack([np.eye(3)] * 4)).shape == (4, 3)
+
+
+def test_frontal_coordinates_hand_values():
+    pts = np.array([[1.0, 2.0, 3.0], [-4.0, 5.0, 6.0]])
+    # a face looking into the camera: (x, -y)
+    np.testing.assert_allclose(cv.frontal_coordinates(pts, (0, 0, -1)), [[1, -2], [-4, -5]], atol=1e-15)
+    # seen from behind (forward +z): (x, y), the other handedness
+    np.testing.assert_allclose(cv.frontal_coordinates(pts, (0, 0, 5)), [[1, 2], [-4, 5]], atol=1e-15)
+    # a face looking along +x (x parallel to forward): e1 = y, e2 = x cross y = z
+    np.testing.assert_allclose(cv.frontal_coordinates(pts, (2, 0, 0)), [[2, 3], [5, 6]], atol=1e-15)
+    # a counter-clockwise triangle seen from the front (normal toward the viewer) has positive area
+    tri = np.array([[0.0, 0, 500], [10, 0, 500], [0, -10, 500]])  # normal (b-a)x(c-a) = (0, 0, -100)
+    q = cv.frontal_coordinates(tri, (0, 0, -1))
+    assert (q[1] - q[0])[0] * (q[2] - q[0])[1] - (q[1] - q[0])[1] * (q[2] - q[0])[0] > 0
+    for bad in ((0, 0, 0), (0, 0), (np.nan, 0, 1)):
+        with pytest.raises(ValueError, match="forward"):
+            cv.frontal_coordinates(pts, bad)
