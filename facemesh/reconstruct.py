@@ -881,6 +881,12 @@ def _region_loops(q: NDArray[np.float64], boundary: list[tuple[int, int]], hull:
         loops.append(loop)
 
 
+def _doubled_areas(q: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(M,) twice the signed area of each triangle in 2D, positive when counter-clockwise."""
+    a, b, c = q[tri[:, 0]], q[tri[:, 1]], q[tri[:, 2]]
+    return np.asarray((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+
+
 def _signed_area(xy: NDArray[np.float64]) -> float:
     return 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
 
@@ -909,7 +915,7 @@ def _planar_subset(q: NDArray[np.float64], tri: NDArray[np.int64]) -> NDArray[np
         return keep
     xy = q[tri]  # (M, 3 corners, 2)
     e = np.roll(xy, -1, axis=1) - xy
-    area2 = e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0]
+    area2 = _doubled_areas(q, tri)
     normals = np.stack([e[..., 1], -e[..., 0]], axis=-1)  # (M, 3 axes, 2)
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-300)
     lo, hi = xy.min(axis=1), xy.max(axis=1)
@@ -956,8 +962,7 @@ def _constrained_fill(
     for isl in islands:
         keep &= ~_inside(q[isl], centroid)
     tri = simplices[keep]
-    a, b, c = q[tri[:, 0]], q[tri[:, 1]], q[tri[:, 2]]
-    area2 = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+    area2 = _doubled_areas(q, tri)
     tri[area2 < 0] = tri[area2 < 0][:, [0, 2, 1]]  # counter-clockwise, as the region's outer loop
     region = _signed_area(q[outer]) - sum(abs(_signed_area(q[isl])) for isl in islands)
     if abs(0.5 * float(np.abs(area2).sum()) - region) > 1e-9 * max(region, 1.0):
@@ -967,6 +972,26 @@ def _constrained_fill(
         if any((min(u, v), max(u, v)) not in have for u, v in zip(lp, lp[1:] + lp[:1])):
             return None
     return [(int(x), int(y), int(z)) for x, y, z in tri]
+
+
+def _outline(q: NDArray[np.float64]) -> list[int]:
+    """The convex hull of 2D points, counter-clockwise, through every point on its edges (not only its corners)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        corners = [int(i) for i in ConvexHull(q).vertices]  # counter-clockwise in 2D
+    except QhullError as exc:
+        raise InputError("points: all on one line seen from the front; no outline to fill") from exc
+    tol = 1e-9 * max(float(np.ptp(q, axis=0).max()), 1e-12)
+    hull: list[int] = []
+    for a, b in zip(corners, corners[1:] + corners[:1]):
+        d = q[b] - q[a]
+        length2 = float(d @ d)
+        t = (q - q[a]) @ d / length2
+        off = np.abs((q - q[a]) @ np.array([-d[1], d[0]])) / np.sqrt(length2)
+        on = np.flatnonzero((off <= tol) & (t > 0) & (t < 1))
+        hull += [a] + [int(i) for i in on[np.argsort(t[on], kind="stable")]]
+    return hull
 
 
 def fill_to_outline(
@@ -1007,36 +1032,12 @@ def fill_to_outline(
         (F, 3) int64 triangles to append; the number of loops closed; the
         number left open.
     """
-    from scipy.spatial import ConvexHull, QhullError
-
-    from .face_models.triangulation import ear_clip
+    from .face_models.triangulation import boundary_edges, ear_clip
 
     pts = np.asarray(points_mm, dtype=np.float64)
     tri = _validate_triangles(triangles, len(pts))
     q = _frontal(pts, forward)
-    try:
-        corners = [int(i) for i in ConvexHull(q).vertices]  # counter-clockwise in 2D
-    except QhullError as exc:
-        raise InputError("points: all on one line seen from the front; no outline to fill") from exc
-    # the outline runs through every point on the hull's edges, not only its corners
-    tol = 1e-9 * max(float(np.ptp(q, axis=0).max()), 1e-12)
-    hull: list[int] = []
-    for a, b in zip(corners, corners[1:] + corners[:1]):
-        d = q[b] - q[a]
-        length2 = float(d @ d)
-        t = (q - q[a]) @ d / length2
-        off = np.abs((q - q[a]) @ np.array([-d[1], d[0]])) / np.sqrt(length2)
-        on = np.flatnonzero((off <= tol) & (t > 0) & (t < 1))
-        hull += [a] + [int(i) for i in on[np.argsort(t[on], kind="stable")]]
-    boundary: list[tuple[int, int]] = []
-    if len(tri):
-        ids, owner, n_edges = _edge_ids(tri)
-        count = np.bincount(ids, minlength=n_edges)
-        m = len(tri)
-        for slot in np.flatnonzero(count[ids] == 1):
-            t, k = int(owner[slot]), int(slot // m)
-            boundary.append((int(tri[t, k]), int(tri[t, (k + 1) % 3])))
-    loops = [lp for lp in _region_loops(q, boundary, hull) if len(lp) >= 3]
+    loops = [lp for lp in _region_loops(q, boundary_edges(tri), _outline(q)) if len(lp) >= 3]
     pieces = [lp for lp in loops if _signed_area(q[lp]) > 0]
     inner = [lp for lp in loops if _signed_area(q[lp]) <= 0]
     on_loops = {v for lp in loops for v in lp}
@@ -1128,7 +1129,7 @@ def insert_points(
         if not len(arr):
             break
         a, b, c = q[arr[:, 0]], q[arr[:, 1]], q[arr[:, 2]]
-        den = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+        den = _doubled_areas(q, arr)
         with np.errstate(divide="ignore", invalid="ignore"):
             wb = ((q[p] - a)[:, 0] * (c - a)[:, 1] - (q[p] - a)[:, 1] * (c - a)[:, 0]) / den
             wc = ((b - a)[:, 0] * (q[p] - a)[:, 1] - (b - a)[:, 1] * (q[p] - a)[:, 0]) / den
@@ -1166,8 +1167,7 @@ def _delaunay(points: NDArray[np.float64], forward: NDArray[np.float64]) -> NDAr
         tri = np.asarray(Delaunay(q).simplices, dtype=np.int64)
     except QhullError as exc:
         raise InputError("points: all on one line seen from the front; no surface to triangulate") from exc
-    a, b, c = q[tri[:, 0]], q[tri[:, 1]], q[tri[:, 2]]
-    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    cw = _doubled_areas(q, tri) < 0
     tri[cw] = tri[cw][:, [0, 2, 1]]  # counter-clockwise seen from the front
     return tri
 

@@ -31,6 +31,7 @@ from ..reconstruct import orient_triangles_toward
 __all__ = [
     "triangles_from_edges",
     "edge_use_counts",
+    "boundary_edges",
     "boundary_loops",
     "ear_clip",
     "clean_triangulation_from_edges",
@@ -66,6 +67,18 @@ def edge_use_counts(triangles: ArrayLike) -> Counter[tuple[int, int]]:
     return cnt
 
 
+def boundary_edges(triangles: ArrayLike) -> list[tuple[int, int]]:
+    """The edges used by one triangle only, directed as their triangle runs them, in triangle order."""
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    cnt = edge_use_counts(tri)
+    return [
+        (a, b)
+        for t in tri.tolist()
+        for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))
+        if cnt[(min(a, b), max(a, b))] == 1
+    ]
+
+
 def boundary_loops(triangles: ArrayLike) -> list[list[int]]:
     """Closed loops of boundary edges (edges used by one triangle), ordered as the triangles run them.
 
@@ -75,15 +88,11 @@ def boundary_loops(triangles: ArrayLike) -> list[list[int]]:
     Raises:
         ValueError: the boundary is not a set of simple loops.
     """
-    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
-    cnt = edge_use_counts(tri)
     nxt: dict[int, int] = {}
-    for t in tri.tolist():
-        for a, b in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])):
-            if cnt[(min(a, b), max(a, b))] == 1:
-                if a in nxt:
-                    raise ValueError(f"boundary vertex {a} is on more than one boundary edge leaving it")
-                nxt[a] = b
+    for a, b in boundary_edges(triangles):
+        if a in nxt:
+            raise ValueError(f"boundary vertex {a} is on more than one boundary edge leaving it")
+        nxt[a] = b
     loops: list[list[int]] = []
     seen: set[int] = set()
     for start in sorted(nxt):
