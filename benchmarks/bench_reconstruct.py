@@ -38,12 +38,12 @@ from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py: the photos
 
 from facemesh.build import fit_face, mesh_for_fit  # noqa: E402
 from facemesh.camera import camera_for_image  # noqa: E402
-from facemesh.conventions import face_forward, frontal_coordinates, pixels_to_uv  # noqa: E402
+from facemesh.conventions import face_forward, frontal_coordinates  # noqa: E402
 from facemesh.face_models.layouts import SPARSE_LAYOUTS  # noqa: E402
 from facemesh.face_models.triangulation import boundary_loops  # noqa: E402
 from facemesh.io import load_image_rgb  # noqa: E402
 from facemesh.landmarks.mediapipe import MediaPipeFaceMesh  # noqa: E402
-from facemesh.pose import project_points  # noqa: E402
+from facemesh.mesh import texture_uv  # noqa: E402
 from facemesh.reconstruct import SURFACE_METHODS, Reconstruction, reconstruct_surface  # noqa: E402
 from facemesh.types import FaceMesh  # noqa: E402
 
@@ -60,9 +60,8 @@ def surface_mesh(dense: FaceMesh, idx: np.ndarray, rec: Reconstruction) -> FaceM
     uv = np.asarray(dense.uv)[idx]
     if len(rec.appended_vertices_mm):
         th, tw = dense.texture.shape[:2]
-        px = project_points(rec.appended_vertices_mm, dense.camera)
         v = np.concatenate([v, rec.appended_vertices_mm])
-        uv = np.concatenate([uv, pixels_to_uv(px, dense.texture_origin_px, (tw, th))])
+        uv = np.concatenate([uv, texture_uv(rec.appended_vertices_mm, dense.camera, dense.texture_origin_px, (tw, th))])
     return dataclasses.replace(
         dense, vertices_mm=v, triangles=rec.triangles, uv=uv, reconstruction=rec.as_metadata(), extras={}
     )

@@ -63,6 +63,7 @@ __all__ = [
     "BuildSettings",
     "place_vertices",
     "crop_texture",
+    "texture_uv",
     "build_face_mesh",
     "to_open3d",
     "to_trimesh",
@@ -182,6 +183,26 @@ def crop_texture(
     return np.ascontiguousarray(image_rgb[iy0:iy1, ix0:ix1]), (ix0, iy0)
 
 
+def texture_uv(
+    points_mm: ArrayLike, camera: CameraIntrinsics, texture_origin_px: tuple[int, int], texture_size_wh: tuple[int, int]
+) -> NDArray[np.float64]:
+    """GlTF texture coordinates of camera-frame points in a texture cropped from that camera's image.
+
+    For vertices that are not landmarks (Poisson's, the renderer's background
+    rings): each is textured with the photo's pixel it projects onto.
+
+    Args:
+        points_mm: (K, 3) float, mm, OpenCV camera frame of ``camera``.
+        camera: the source image's camera (with its distortion).
+        texture_origin_px: (x0, y0), the image pixel that is the texture's top-left.
+        texture_size_wh: (width, height) of the texture, pixels.
+
+    Returns:
+        (K, 2) float64 glTF uv.
+    """
+    return pixels_to_uv(project_points(points_mm, camera), texture_origin_px, texture_size_wh)
+
+
 def build_face_mesh(
     image_rgb: NDArray[np.uint8],
     landmarks: FaceLandmarks,
@@ -238,9 +259,7 @@ def build_face_mesh(
     uv = pixels_to_uv(landmarks.points_px[:n], origin, (texture.shape[1], texture.shape[0]))
     if len(appended):  # vertices the surface added after the landmarks' own: textured where they project
         vertices = np.concatenate([vertices, appended])
-        uv = np.concatenate(
-            [uv, pixels_to_uv(project_points(appended, camera), origin, (texture.shape[1], texture.shape[0]))]
-        )
+        uv = np.concatenate([uv, texture_uv(appended, camera, origin, (texture.shape[1], texture.shape[0]))])
     return FaceMesh(
         vertices_mm=vertices,
         triangles=triangles,

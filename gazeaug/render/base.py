@@ -24,9 +24,8 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from facemesh.conventions import pixels_to_uv
 from facemesh.face_models.triangulation import boundary_loops
-from facemesh.pose import project_points
+from facemesh.mesh import texture_uv
 from facemesh.reconstruct import orient_triangles_toward
 from facemesh.render import camera_rays
 from facemesh.types import FaceMesh
@@ -200,9 +199,8 @@ def render_mesh(mesh: FaceMesh, rings: Sequence[tuple[float, float]] = BACKGROUN
         new_vertices.append(ring @ r.T + t)
     ring_v = np.concatenate(new_vertices)
     # texture: where the ring points project in the source image
-    px = project_points(ring_v, mesh.camera)
     th, tw = mesh.texture.shape[:2]
-    ring_uv = pixels_to_uv(px, mesh.texture_origin_px, (tw, th))
+    ring_uv = texture_uv(ring_v, mesh.camera, mesh.texture_origin_px, (tw, th))
     # quads between consecutive rings
     m = len(outer)
     prev = np.asarray(outer, dtype=np.int64)
