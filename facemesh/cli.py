@@ -81,6 +81,7 @@ def finite_float(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``facemesh`` command."""
     from . import __version__
+    from .reconstruct import MIN_SURFACE_POINTS, SURFACE_METHODS
 
     parser = OneLineParser(prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -106,13 +107,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
     b.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
+    methods = ("auto", *SURFACE_METHODS)
     b.add_argument(
         "--reconstruct",
-        choices=("auto", "bpa+fill", "bpa", "poisson", "delaunay", "ball_pivoting"),
+        choices=(*methods, "ball_pivoting"),  # the former name of bpa, still accepted
         default="auto",
-        metavar="{auto,bpa+fill,bpa,poisson,delaunay}",
-        help="triangles: auto = the face model's, else bpa+fill (Ball-Pivoting with its holes closed; "
-        "delaunay below 20 points); or one method for any model (docs/face_model.md)",
+        metavar="{" + ",".join(methods) + "}",
+        help=f"triangles: auto = the face model's, else {SURFACE_METHODS[0]} (Ball-Pivoting with its holes "
+        f"closed; delaunay below {MIN_SURFACE_POINTS} points); or one method for any model (docs/face_model.md)",
     )
     b.add_argument(
         "--bpa-backend", choices=("open3d", "pymeshlab"), default="open3d", help="Ball-Pivoting implementation"
