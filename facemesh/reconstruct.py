@@ -819,21 +819,27 @@ def ball_pivoting(
 
 
 def _unit_forward(
-    points: NDArray[np.float64], viewpoint: NDArray[np.float64], forward: ArrayLike | None
+    forward: ArrayLike | None,
+    points: NDArray[np.float64] | None = None,
+    viewpoint: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
-    f = viewpoint - points.mean(axis=0) if forward is None else _validate_point3(forward, "forward")
+    """``forward`` checked (InputError) and made unit; when ``None``, from the points' centroid toward the viewpoint."""
+    if forward is None:
+        assert points is not None and viewpoint is not None
+        f = viewpoint - points.mean(axis=0)
+        problem = "the points' centroid is the viewpoint"
+    else:
+        f = _validate_point3(forward, "forward")
+        problem = "got (0, 0, 0)"
     norm = float(np.linalg.norm(f))
     if not norm > 0:
-        raise InputError("forward: expected a non-zero direction (the points' centroid is the viewpoint)")
+        raise InputError(f"forward: expected a non-zero direction ({problem})")
     return f / norm
 
 
 def _frontal(points: NDArray[np.float64], forward: ArrayLike) -> NDArray[np.float64]:
     """:func:`~facemesh.conventions.frontal_coordinates`, ``forward`` checked as the other inputs are (InputError)."""
-    f = _validate_point3(forward, "forward")
-    if not float(np.linalg.norm(f)) > 0:
-        raise InputError("forward: expected a non-zero direction, got (0, 0, 0)")
-    return frontal_coordinates(points, f)
+    return frontal_coordinates(points, _unit_forward(forward))
 
 
 def _region_loops(q: NDArray[np.float64], boundary: list[tuple[int, int]], hull: list[int]) -> list[list[int]]:
@@ -1241,7 +1247,7 @@ def reconstruct_surface(
         raise InputError(f"surface method: expected one of {SURFACE_METHODS}, got {method!r}")
     pts = _validate_points(points_mm)
     view = _validate_point3(viewpoint_mm, "viewpoint_mm")
-    fwd = _unit_forward(pts, view, forward)
+    fwd = _unit_forward(forward, pts, view)
     if method != "delaunay" and len(pts) < MIN_SURFACE_POINTS:
         raise InputError(
             f"points: {len(pts)} are too few for {method} (it needs a point cloud of at least "
