@@ -108,6 +108,11 @@ def undistort_to_rays(points_px: ArrayLike, camera: CameraIntrinsics) -> NDArray
     return np.column_stack([n, np.ones(len(n))])
 
 
+#: Landmarks whose smaller spread (singular value of the centred points) is
+#: below this fraction of the larger (or of 1 px) lie on one line: no pose.
+_MIN_LANDMARK_SPREAD = 1e-6
+
+
 def solve_head_pose(
     landmarks_px: ArrayLike,
     model_points_mm: ArrayLike,
@@ -136,7 +141,7 @@ def solve_head_pose(
         The pose (head frame -> camera frame) with its RMS reprojection error.
 
     Raises:
-        InputError: mismatched or too few points.
+        InputError: mismatched or too few points, or landmarks at one point or on one line.
         PoseError: no pose puts the face in front of the camera, or a landmark lies
             too far from its reprojection.
 
@@ -153,6 +158,14 @@ def solve_head_pose(
         raise InputError(f"model_points_mm: expected shape ({len(img)}, 3) to match the landmarks, got {obj.shape}")
     if len(img) < 4:
         raise InputError(f"PnP needs at least 4 points, got {len(img)}")
+    if not np.all(np.isfinite(img)):
+        raise InputError("landmarks_px: expected finite values, got NaN or infinite values")
+    spread = np.linalg.svd(img - img.mean(axis=0), compute_uv=False)  # (2,) along the landmarks' two main axes
+    if not spread[-1] > _MIN_LANDMARK_SPREAD * max(float(spread[0]), 1.0):
+        raise InputError(
+            f"landmarks_px: all {len(img)} at one point or on one line (spreads {spread[0]:.3g} and "
+            f"{spread[-1]:.3g} px); a head pose needs them spread over the face"
+        )
     k = np.asarray(camera.matrix)
     dist = np.asarray(camera.distortion)
     candidates = []

@@ -111,6 +111,23 @@ def test_pnp_recovers_a_known_pose_with_distortion():
     np.testing.assert_allclose(rays * pts[:, 2:3], pts, atol=1e-6)
 
 
+def test_pnp_refuses_landmarks_at_one_point_or_on_one_line():
+    """A landmark file of zeros (or points on a line) has no pose: one clear error, not a pose 1e16 mm away."""
+    model = builtin_face_model()
+    cam = CameraIntrinsics(
+        matrix=[[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]], distortion=np.zeros(5), image_size=(640, 480)
+    )
+    n = model.num_points
+    line = np.stack([np.linspace(100, 300, n), np.linspace(50, 150, n)], axis=1)  # y = x / 2
+    for px in (np.zeros((n, 2)), np.full((n, 2), 200.0), line):
+        with pytest.raises(InputError, match="at one point or on one line"):
+            solve_head_pose(px, model.vertices_mm, cam)
+    bad = np.zeros((n, 2))
+    bad[3] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        solve_head_pose(bad, model.vertices_mm, cam)
+
+
 def test_pnp_on_the_calibrated_mpiifacegaze_sample(real_mpii_sample, detector):
     mpii_sample = real_mpii_sample  # the real frame's own numbers
     ann = json.loads((mpii_sample / "annotation.json").read_text())
