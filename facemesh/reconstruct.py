@@ -1254,6 +1254,10 @@ def reconstruct_surface(
             f"{MIN_SURFACE_POINTS}); 'delaunay' triangulates them as seen from the front (a planar fallback)"
         )
     spacing = median_spacing(pts)
+    q = frontal_coordinates(pts, fwd)
+    extent = np.linalg.svd(q - q.mean(axis=0), compute_uv=False)  # (2,) spreads along the frontal axes
+    if not extent[-1] > 1e-9 * extent[0]:
+        raise InputError("points: all on one line seen from the front; no surface to make of them")
     if method in ("bpa", "bpa+fill"):
         rec = ball_pivoting(pts, view, ball_pivoting_settings)
         if method == "bpa":
@@ -1262,7 +1266,7 @@ def reconstruct_surface(
         # Seen from the front a face is a height field: triangles facing backward or overlapping
         # others are folds (Ball-Pivoting across the chin or the lips), which would cover part of
         # the face twice. Keep a subset that covers it once, smaller triangles first.
-        surface = surface[_planar_subset(frontal_coordinates(pts, fwd), surface)]
+        surface = surface[_planar_subset(q, surface)]
         surface = clean_triangles(surface, len(pts), min_component_fraction=0.0)
         surface, added, filled, left_open = fill_to_outline(pts, surface, fwd)
         tri = np.concatenate([surface, added])

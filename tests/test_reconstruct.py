@@ -595,3 +595,13 @@ def test_unmatched_backend_vertex_is_an_error() -> None:
     moved[1, 0] += 0.01
     with pytest.raises(RuntimeError, match="matches no input point"):
         _map_to_input(pts, moved, np.array([[0, 1, 2]]))
+
+
+@pytest.mark.parametrize("method", ["bpa+fill", "bpa", "poisson", "delaunay"])
+def test_points_on_one_line_seen_from_the_front_are_refused(method: str) -> None:
+    """A 'face' whose points line up seen from the front (a vertical sheet seen edge-on) has no surface:
+    every method says so in one InputError (poisson used to fail inside Qhull)."""
+    xs, zs = np.meshgrid(np.arange(5) * 10.0, 500.0 + np.arange(5) * 10.0)
+    edge_on = np.stack([xs.ravel(), np.zeros(xs.size), zs.ravel()], axis=1)  # the plane y = 0
+    with pytest.raises(InputError, match="on one line seen from the front"):
+        reconstruct_surface(edge_on, method, forward=(0.0, 0.0, -1.0))
