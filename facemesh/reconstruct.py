@@ -634,13 +634,11 @@ def orient_triangles_toward(
 # --------------------------------------------------------------------------- backends
 
 
-def _import_pymeshlab() -> Any:
+def _import_pymeshlab(purpose: str) -> Any:
     try:
         import pymeshlab
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            f"Ball-Pivoting with backend='pymeshlab' needs PyMeshLab: pip install pymeshlab. Import failed with: {exc}"
-        ) from exc
+        raise ImportError(f"{purpose} needs PyMeshLab: pip install pymeshlab. Import failed with: {exc}") from exc
     return pymeshlab
 
 
@@ -686,7 +684,7 @@ def _bpa_pymeshlab(
     schedules: list[tuple[float, ...]],
     settings: BallPivotingSettings,
 ) -> list[tuple[NDArray[np.float64], NDArray[np.int64]]]:
-    pymeshlab = _import_pymeshlab()
+    pymeshlab = _import_pymeshlab("Ball-Pivoting with backend='pymeshlab'")
     k = min(int(settings.normal_neighbours), len(points))
     # PyMeshLab 2023+ calls an absolute parameter value PureValue; older ones AbsoluteValue
     absolute = getattr(pymeshlab, "PureValue", None) or pymeshlab.AbsoluteValue
@@ -1187,7 +1185,7 @@ def _poisson(
     """Screened Poisson, cut to its front sheet inside the outline: (K, 3) new vertices, (M, 3) triangles into them."""
     from scipy.spatial import Delaunay
 
-    pymeshlab = _import_pymeshlab()
+    pymeshlab = _import_pymeshlab("Poisson reconstruction (method 'poisson')")
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
     k = min(int(settings.normal_neighbours), len(points))
