@@ -1,6 +1,6 @@
 """End-to-end augmentation speed vs. decoding the images and running the landmark detector alone.
 
-``python benchmarks/bench_augment.py [--copies 6] [--per-sample 4] [--workers 1 2]`` builds a
+``python benchmarks/bench_augment.py [--copies 12] [--per-sample 4] [--workers 1 2]`` builds a
 folder dataset from the single-face photos of ../shared/data/faces (each copied
 ``--copies`` times, default camera), then measures on the same images:
 

@@ -1,6 +1,8 @@
 """How the three vertex placements differ: fidelity of the original-view render and a picture.
 
-Usage: python benchmarks/compare_placements.py [FACES_DIR] [-o docs/img/placements.png]
+Usage: python benchmarks/compare_placements.py [FACES_DIR] [-o placements.png]
+
+(docs/img/placements.png is drawn by ``python docs/make_figures.py placements``.)
 
 For each photo it builds the mesh with each placement and reports
   reproj  mean distance (px) between projected vertices and their landmarks;
@@ -37,7 +39,7 @@ def main() -> None:
     parser.add_argument(
         "faces", nargs="?", type=Path, default=Path(__file__).resolve().parents[2] / "shared/data/faces"
     )
-    parser.add_argument("-o", "--output", type=Path, default=Path("docs/img/placements.png"))
+    parser.add_argument("-o", "--output", type=Path, default=Path("placements.png"), help="the picture")
     args = parser.parse_args()
     model = builtin_face_model()
     rows = []

@@ -1,10 +1,18 @@
-"""Draw the convention figure of docs/conventions.md.
+"""Draw every picture in docs/img: ``python docs/make_figures.py [NAME ...]`` (default: all).
 
-``python docs/make_figures.py`` writes docs/img/pitch_convention.png, the
-simulator's pictures docs/img/simulated_rigs.png and docs/img/identities.png.
+NAME is one of (``--list`` prints them with their files):
 
-Drawn from the conventions module itself (the face direction of a head pose
-pitch of +30 deg), not by hand, so the picture cannot disagree with the code.
+- ``convention``: pitch_convention.png, the head-pose pitch convention, drawn from
+  :mod:`facemesh.conventions` itself (the face direction of a pitch of +30 deg), so the
+  picture cannot disagree with the code;
+- ``rigs``: simulated_rigs.png, simulated images of the built-in sample in both rigs;
+- ``identities``: identities.png, eye patches of simulated identities;
+- ``preview``: preview_sheet.png and preview_distribution.png, ``gazeaug preview`` on the
+  built-in sample (16 augmented samples, the default distribution, seed 0);
+- ``placements``: placements.png, ``benchmarks/compare_placements.py`` (needs ../shared);
+- ``reconstruction``: reconstruction.png, ``benchmarks/bench_reconstruct.py`` (needs ../shared).
+
+Pictures that need ../shared/data are skipped with a message when it is absent.
 """
 
 from __future__ import annotations
@@ -109,7 +117,7 @@ def identities_figure() -> None:
     print(f"wrote {ID_OUT}")
 
 
-def main() -> None:
+def convention_figure() -> None:
     """Side view (the subject's right side; the camera frame's y down, z forward)."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     for ax, title, cam_angle in (
@@ -150,7 +158,76 @@ def main() -> None:
     print(f"wrote {OUT}")
 
 
+IMG = Path(__file__).resolve().parent / "img"
+REPO = IMG.parents[1]
+SHARED_FACES = REPO.parent / "shared" / "data" / "faces"
+
+
+def preview_figure() -> None:
+    """``gazeaug preview`` on the built-in sample: the contact sheet and its distribution plot."""
+    import shutil
+    import tempfile
+
+    from gazeaug.cli import main as gazeaug_main
+
+    with tempfile.TemporaryDirectory() as tmp:
+        sheet = Path(tmp) / "sheet.png"
+        if gazeaug_main(["preview", "-n", "16", "--seed", "0", "-o", str(sheet)]) != 0:
+            raise SystemExit("make_figures: gazeaug preview failed")
+        shutil.copy(sheet, IMG / "preview_sheet.png")
+        shutil.copy(Path(tmp) / "sheet_distribution.png", IMG / "preview_distribution.png")
+    print(f"wrote {IMG / 'preview_sheet.png'}, {IMG / 'preview_distribution.png'}")
+
+
+def _benchmark(script: str, *args: str) -> None:
+    """Run a benchmark script that draws a figure (it needs ../shared/data/faces)."""
+    import subprocess
+    import sys
+
+    if not SHARED_FACES.is_dir():
+        print(f"skipped {script}: {SHARED_FACES} not found")
+        return
+    subprocess.run([sys.executable, str(REPO / "benchmarks" / script), *args], check=True, cwd=REPO)
+
+
+FIGURES = {
+    "convention": (convention_figure, ("pitch_convention.png",)),
+    "rigs": (simulation_figure, ("simulated_rigs.png",)),
+    "identities": (identities_figure, ("identities.png",)),
+    "preview": (preview_figure, ("preview_sheet.png", "preview_distribution.png")),
+    "placements": (
+        lambda: _benchmark("compare_placements.py", str(SHARED_FACES), "-o", str(IMG / "placements.png")),
+        ("placements.png",),
+    ),
+    "reconstruction": (
+        lambda: _benchmark("bench_reconstruct.py", "--figure", str(IMG / "reconstruction.png")),
+        ("reconstruction.png",),
+    ),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Draw the figures named (default: all)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "names", nargs="*", metavar="NAME", help=f"figures to draw: {', '.join(FIGURES)} (default: all)"
+    )
+    parser.add_argument("--list", action="store_true", help="list the figures and their files, draw nothing")
+    args = parser.parse_args(argv)
+    unknown = [n for n in args.names if n not in FIGURES]
+    if unknown:
+        parser.error(f"unknown figure {', '.join(unknown)}: expected one of {', '.join(FIGURES)}")
+    if args.list:
+        for name, (_, files) in FIGURES.items():
+            print(f"{name}: {', '.join('docs/img/' + f for f in files)}")
+        return 0
+    IMG.mkdir(parents=True, exist_ok=True)
+    for name in args.names or list(FIGURES):
+        FIGURES[name][0]()
+    return 0
+
+
 if __name__ == "__main__":
-    main()
-    simulation_figure()
-    identities_figure()
+    raise SystemExit(main())

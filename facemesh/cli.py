@@ -67,6 +67,26 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+#: Upper bound of ``facemesh render --supersample``: the rays (and memory) grow as its square.
+MAX_SUPERSAMPLE = 8
+
+
+def integer_in(low: int, high: int | None = None) -> Any:
+    """Argparse type: an integer >= ``low`` (and <= ``high`` when given)."""
+    expected = f"an integer >= {low}" if high is None else f"an integer from {low} to {high}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
+        return value
+
+    return parse
+
+
 def finite_float(text: str) -> float:
     """Argparse type: a finite float (NaN and infinities are refused)."""
     try:
@@ -81,6 +101,7 @@ def finite_float(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``facemesh`` command."""
     from . import __version__
+    from .mesh import BuildSettings
     from .reconstruct import MIN_SURFACE_POINTS, SURFACE_METHODS
 
     parser = OneLineParser(prog="facemesh", description="Textured 3D face meshes from face landmarks, as glTF.")
@@ -93,16 +114,32 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("-o", "--output", type=Path, required=True, help="output .glb")
     b.add_argument(
-        "--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze Camera.mat"
+        "--camera",
+        type=Path,
+        help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze Camera.mat (default: focal length "
+        "max(W, H) px, principal point at the image centre, no distortion, with a warning)",
     )
-    b.add_argument("--face-index", type=int, default=None, help="which face, largest first (default: the largest)")
+    b.add_argument(
+        "--face-index",
+        type=int,
+        default=None,
+        help="which face when there are several, by size: 0 = the largest, 1 = the second largest, ... "
+        "(default: the largest)",
+    )
     b.add_argument(
         "--vertices",
         choices=("canonical", "backprojected", "landmarks3d"),
         default="backprojected",
-        help="vertex placement (default: backprojected)",
+        help="where each vertex goes: canonical = the face model's point at the solved pose; backprojected = on "
+        "the camera ray through its landmark, at the posed model's depth; landmarks3d = on that ray, at the "
+        "detector's own depth (MediaPipe) (default: backprojected)",
     )
-    b.add_argument("--face-model", default=None, help="'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy)")
+    b.add_argument(
+        "--face-model",
+        default=None,
+        help="the 3D face model the landmarks correspond to: 'mediapipe' or a model file (.obj, .pbtxt, .txt, "
+        ".csv, .npy; mm) (default: mediapipe)",
+    )
     b.add_argument(
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
@@ -117,31 +154,71 @@ def build_parser() -> argparse.ArgumentParser:
         f"closed; delaunay below {MIN_SURFACE_POINTS} points); or one method for any model (docs/face_model.md)",
     )
     b.add_argument(
-        "--bpa-backend", choices=("open3d", "pymeshlab"), default="open3d", help="Ball-Pivoting implementation"
+        "--bpa-backend",
+        choices=("open3d", "pymeshlab"),
+        default="open3d",
+        help="Ball-Pivoting implementation, when the triangles come from Ball-Pivoting (default: open3d)",
     )
-    b.add_argument("--texture-format", choices=("png", "jpeg"), default="png", help="texture encoding inside the .glb")
     b.add_argument(
-        "--texture-margin", type=finite_float, default=0.15, help="texture crop margin, fraction of the face size"
+        "--texture-format",
+        choices=("png", "jpeg"),
+        default="png",
+        help="texture encoding inside the .glb (default: png)",
+    )
+    b.add_argument(
+        "--texture-margin",
+        type=finite_float,
+        default=BuildSettings.texture_margin,
+        help="margin of photo kept around the face in the texture, a fraction of the face's size "
+        f"(default {BuildSettings.texture_margin:g}: what gazeaug render needs up to 40 deg, docs/face_model.md)",
     )
     b.add_argument("--atlas", action="store_true", help="repack the texture into a compact atlas (xatlas)")
-    b.add_argument("--preview", type=Path, help="also write a picture: the mesh rendered over the photo")
+    b.add_argument(
+        "--preview",
+        type=Path,
+        help="also write a picture (.png/.jpg): the mesh and its wireframe over the photo, beside a frontal view",
+    )
 
     i = sub.add_parser("info", help="describe a .glb written by facemesh")
-    i.add_argument("glb", type=Path)
+    i.add_argument("glb", type=Path, help="a .glb written by facemesh build")
     i.add_argument("--json", action="store_true", help="print the metadata as JSON")
 
     r = sub.add_parser("render", help="picture of a .glb's face turned by a yaw and a pitch")
-    r.add_argument("glb", type=Path)
-    r.add_argument("--yaw", type=finite_float, default=0.0, help="degrees; > 0 turns the face toward the image's left")
-    r.add_argument("--pitch", type=finite_float, default=0.0, help="degrees; > 0 turns the face up")
-    r.add_argument("--supersample", type=int, default=2, help="rays per pixel side")
-    r.add_argument("-o", "--output", type=Path, required=True, help="output picture (.png/.jpg)")
+    r.add_argument("glb", type=Path, help="a .glb written by facemesh build")
+    r.add_argument(
+        "--yaw",
+        type=finite_float,
+        default=0.0,
+        help="degrees, relative to the photo's head pose (0: as photographed); > 0 turns the face toward the "
+        "image's left, about the point between the eyes (default 0)",
+    )
+    r.add_argument(
+        "--pitch",
+        type=finite_float,
+        default=0.0,
+        help="degrees, relative to the photo's head pose (0: as photographed); > 0 turns the face up (default 0)",
+    )
+    r.add_argument(
+        "--supersample",
+        type=integer_in(1, MAX_SUPERSAMPLE),
+        default=2,
+        help=f"anti-aliasing: N x N rays per pixel, 1 = one ray through each pixel's centre, at most "
+        f"{MAX_SUPERSAMPLE} (default 2)",
+    )
+    r.add_argument(
+        "-o", "--output", type=Path, required=True, help="output picture (.png/.jpg), the photo's size, grey background"
+    )
 
     m = sub.add_parser("model", help="face models")
     msub = m.add_subparsers(dest="model_command", required=True)
     e = msub.add_parser("export", help="write a face model as OBJ (mm, head frame)")
-    e.add_argument("model", nargs="?", default="mediapipe", help="'mediapipe' (built-in) or a model file")
-    e.add_argument("-o", "--output", type=Path, required=True)
+    e.add_argument(
+        "model",
+        nargs="?",
+        default="mediapipe",
+        help="'mediapipe' (built-in) or a model file (.obj, .pbtxt, .txt, .csv, .npy) (default: mediapipe)",
+    )
+    e.add_argument("-o", "--output", type=Path, required=True, help="output .obj")
     return parser
 
 

@@ -32,7 +32,7 @@ from facemesh.conventions import rotation_from_yaw_pitch
 from facemesh.face_models import BUILTIN_MODELS, FaceKeypoints, builtin_face_model
 from facemesh.types import FaceMesh
 
-from .camera import reference_points_head
+from .camera import NormalizedViews, reference_points_head
 from .errors import GazeAugError
 from .normalize import NormalizationSettings, NormalizedSample, samples_from_views, views_at
 from .render.base import RenderMesh, Scene, View, render_mesh
@@ -45,6 +45,10 @@ __all__ = [
     "sampled_placements",
     "source_placement",
     "render_poses",
+    "TEXTURE_REACH",
+    "TextureCropWarning",
+    "texture_shortfall",
+    "warn_texture_shortfall",
 ]
 
 
@@ -151,6 +155,18 @@ def source_placement(asset: FaceAsset) -> HeadPlacement:
     )
 
 
+def _render_views(
+    asset: FaceAsset, views: NormalizedViews, rot: NDArray[np.float64], trans: NDArray[np.float64]
+) -> list[View]:
+    """The renderer's views of both eyes at each placement (``rot``, ``trans``: head -> application camera)."""
+    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
+    b = trans - np.einsum("pij,j->pi", a, t_h)
+    return [
+        View(camera=views.cameras[i][j], rotation=a[i], translation_mm=b[i]) for i in range(len(rot)) for j in range(2)
+    ]
+
+
 def render_poses(
     scene: Scene,
     asset: FaceAsset,
@@ -201,12 +217,7 @@ def render_poses(
     views = views_at(
         asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets, gaze_vector=vectors
     )
-    a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
-    b = trans - np.einsum("pij,j->pi", a, t_h)
-    render_views = [
-        View(camera=views.cameras[i][j], rotation=a[i], translation_mm=b[i]) for i in range(len(rot)) for j in range(2)
-    ]
-    out = scene.render(render_views)
+    out = scene.render(_render_views(asset, views, rot, trans))
     h, w = s.patch_size_wh[1], s.patch_size_wh[0]
     metas = []
     for place in placements:
@@ -223,3 +234,98 @@ def render_poses(
         coverage=np.asarray(out.coverage).reshape(len(rot), 2),
         metas=metas,
     )
+
+
+#: How far beyond a texture position the sampler's reading matters, in pixels of the coarser pyramid
+#: level it reads (``2 ** ceil(lod)`` texture pixels each): that level's ``cv2.pyrDown`` 5-tap kernels
+#: and its bilinear tap (their farther taps weigh little). Measured (11 photos, 56 poses up to 40 deg,
+#: margins 0.15, 0.4, 0.6; docs/face_model.md, "Texture margin"): every eye patch with no pixel within
+#: this reach of a cut edge is within 4 grey levels of the whole photo's render.
+TEXTURE_REACH = 2.0
+
+
+def texture_shortfall(
+    asset: FaceAsset, placements: Sequence[HeadPlacement], settings: NormalizationSettings | None = None
+) -> NDArray[np.float64]:
+    """Share of each eye patch's pixels that the texture's crop may cost: (P, 2) float64, (left, right) rows.
+
+    A pixel counts when the mesh point it shows reads the texture within
+    :data:`TEXTURE_REACH` of a crop edge that the source photo goes past (the
+    crop's margin cut it, not the photo's own edge): there the render reads the
+    crop's replicated edge, or a pyramid level built without the photo's pixels
+    beyond it, where rendering the photo with a wider margin would read the
+    photo. Where no pixel counts, the render is the whole photo's (measured:
+    within 4 grey levels, :data:`TEXTURE_REACH`). The geometry is the
+    renderers' common :class:`RenderMesh`; the reach is the ray caster's
+    sampler's. A rebuild with a wider ``texture_margin`` (``facemesh build
+    --texture-margin``) brings it down. Atlas textures (``--atlas``) are no
+    crop of the photo: zero.
+    """
+    from facemesh.render import RayCaster, TexelTable
+
+    from .render.base import view_rays_packed
+    from .texture import MAX_LEVELS, level_of_detail
+
+    s = settings or NormalizationSettings()
+    if not placements or "atlas" in asset.mesh.extras:
+        return np.zeros((len(placements), 2))
+    rot = np.stack([p.rotation for p in placements])
+    trans = np.stack([p.translation_mm for p in placements])
+    views = views_at(asset.model_vertices_mm, asset.keypoints, rot, trans, s)
+    rm, mesh = asset.render_mesh, asset.mesh
+    th, tw = rm.texture.shape[:2]
+    fragments = RayCaster([(rm.vertices_mm, rm.triangles)]).trace(
+        view_rays_packed(_render_views(asset, views, rot, trans))
+    )
+    hit = fragments.hit
+    px = TexelTable(rm.uv, rm.triangles, (tw, th)).texture_px(fragments)
+    lod = np.minimum(level_of_detail(px, hit), np.float32(MAX_LEVELS))
+    reach = TEXTURE_REACH * 2.0 ** np.ceil(lod)
+    x, y = px[..., 0], px[..., 1]
+    (w, h), (x0, y0) = mesh.camera.image_size, mesh.texture_origin_px
+    short = np.zeros_like(hit)
+    if x0 > 0:  # the photo goes on beyond the crop's left edge
+        short |= x - reach < 0
+    if y0 > 0:
+        short |= y - reach < 0
+    if x0 + tw < w:
+        short |= x + reach > tw - 1
+    if y0 + th < h:
+        short |= y + reach > th - 1
+    short &= hit
+    return short.reshape(len(placements), 2, -1).mean(axis=2)
+
+
+class TextureCropWarning(UserWarning):
+    """A texture crop too tight for a pose: the render may differ from the photo's (:func:`texture_shortfall`)."""
+
+
+def warn_texture_shortfall(
+    asset: FaceAsset,
+    placements: Sequence[HeadPlacement],
+    settings: NormalizationSettings | None = None,
+    name: str = "the mesh",
+) -> float:
+    """Warn (:class:`TextureCropWarning`) when :func:`texture_shortfall` finds pixels at these poses.
+
+    For meshes read from a file (``gazeaug render face.glb``): built with a
+    tighter ``--texture-margin`` than the default, their renders of turned
+    heads can read the crop's edge where rendering the photo reads the photo.
+
+    Returns:
+        The largest share of one eye patch's pixels concerned (0.0: no warning).
+    """
+    import warnings
+
+    from facemesh.mesh import BuildSettings
+
+    worst = float(texture_shortfall(asset, placements, settings).max(initial=0.0))
+    if worst > 0:
+        warnings.warn(
+            f"{name}: its texture crop is too tight for this head pose: {worst:.1%} of an eye patch's pixels read "
+            "the texture at its cut edge, so the render may differ from rendering the photo itself; rebuild it "
+            f"with a wider margin (facemesh build --texture-margin, default {BuildSettings.texture_margin:g})",
+            TextureCropWarning,
+            stacklevel=2,
+        )
+    return worst

@@ -18,29 +18,22 @@ from typing import Any
 import numpy as np
 
 from facemesh.cli import KEYPOINTS_HELP, OneLineParser, finite_float
+from facemesh.cli import integer_in as _integer
 
 __all__ = ["main", "entry", "build_parser"]
-
-
-def _integer(low: int, high: int | None = None) -> Any:
-    """Argparse type: an integer >= ``low`` (and <= ``high`` when given)."""
-    expected = f"an integer >= {low}" if high is None else f"an integer from {low} to {high}"
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
-        if value < low or (high is not None and value > high):
-            raise argparse.ArgumentTypeError(f"expected {expected}, got {value}")
-        return value
-
-    return parse
 
 
 #: Upper bounds of counts that would only exhaust memory or processes: preview samples, worker processes.
 MAX_PREVIEW = 4096
 MAX_WORKERS = 256
+
+#: Help of ``--renderer`` (render, preview, augment).
+RENDERER_HELP = (
+    "eye-patch renderer: raycast, Open3D ray casting on the CPU; filament, Open3D's offscreen renderer "
+    "(GPU or Mesa) (default raycast)"
+)
+#: Help of ``--lr`` (train, experiment).
+LR_HELP = "AdamW learning rate, decayed by cosine to 1%% of it at the end (default 0.001)"
 
 _positive_int = _integer(1)
 _seed = _integer(0)  # numpy's generators take no negative seeds
@@ -102,22 +95,48 @@ def _engine(args: argparse.Namespace, *, local_workers: bool = True) -> Any:
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--camera", type=Path, help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat")
+    p.add_argument(
+        "--camera",
+        type=Path,
+        help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat (default: focal length max(W, H) "
+        "px, principal point at the image centre, no distortion, with a warning)",
+    )
     p.add_argument(
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
-    p.add_argument("--face-model", default=None, help="'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy)")
+    p.add_argument(
+        "--face-model",
+        default=None,
+        help="the 3D face model the landmarks correspond to: 'mediapipe' or a model file (.obj, .pbtxt, .txt, "
+        ".csv, .npy; mm) (default: mediapipe)",
+    )
     p.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
-    p.add_argument("--face-index", type=int, default=None, help="which face, largest first (default: the largest)")
+    p.add_argument(
+        "--face-index",
+        type=int,
+        default=None,
+        help="which face when there are several, by size: 0 = the largest, 1 = the second largest, ... "
+        "(default: the largest)",
+    )
 
 
 def _add_normalization_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--distance", type=finite_float, default=600.0, help="normalized distance d_n in mm (default 600)")
     p.add_argument("--focal", type=finite_float, default=650.0, help="normalized focal length f_n in px (default 650)")
     p.add_argument(
-        "--patch-size", type=int, nargs=2, default=(60, 36), metavar=("W", "H"), help="eye patch size (default 60 36)"
+        "--patch-size",
+        type=int,
+        nargs=2,
+        default=(60, 36),
+        metavar=("W", "H"),
+        help="eye patch width and height, px (default 60 36)",
     )
-    p.add_argument("--no-antialias", action="store_true", help="plain bilinear sampling (as cv2.warpPerspective)")
+    p.add_argument(
+        "--no-antialias",
+        action="store_true",
+        help="plain bilinear sampling, as cv2.warpPerspective (default: antialiased, each pixel's footprint "
+        "averaged from an image pyramid)",
+    )
 
 
 def _add_gaze_options(p: argparse.ArgumentParser) -> None:
@@ -130,19 +149,40 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+#: The head-pose distribution's options (:func:`_add_distribution_options`), as argparse names them.
+_DISTRIBUTION_OPTIONS = ("yaw_mean", "pitch_mean", "yaw_var", "pitch_var", "yaw_std", "pitch_std", "rig")
+
+
 def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
-    g.add_argument("--yaw-mean", type=finite_float, default=None, help="degrees (default 0)")
     g.add_argument(
-        "--pitch-mean", type=finite_float, default=None, help="degrees; + = camera below the face (default 30)"
+        "--yaw-mean",
+        type=finite_float,
+        default=None,
+        help="mean head yaw, degrees; + = face turned toward the image's left (default 0)",
     )
-    g.add_argument("--yaw-var", type=finite_float, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--pitch-var", type=finite_float, default=None, help="variance, deg^2 (default 10)")
-    g.add_argument("--yaw-std", type=finite_float, default=None, help="standard deviation, deg (instead of --yaw-var)")
     g.add_argument(
-        "--pitch-std", type=finite_float, default=None, help="standard deviation, deg (instead of --pitch-var)"
+        "--pitch-mean",
+        type=finite_float,
+        default=None,
+        help="mean head pitch, degrees; + = face turned up, the camera below the face (default 30)",
     )
-    g.add_argument("--rig", default=None, help="'wheelchair', 'screen' or a RIG.yaml (instead of the above)")
+    g.add_argument("--yaw-var", type=finite_float, default=None, help="variance of the yaw, deg^2 (default 10)")
+    g.add_argument("--pitch-var", type=finite_float, default=None, help="variance of the pitch, deg^2 (default 10)")
+    g.add_argument(
+        "--yaw-std", type=finite_float, default=None, help="standard deviation of the yaw, deg (instead of --yaw-var)"
+    )
+    g.add_argument(
+        "--pitch-std",
+        type=finite_float,
+        default=None,
+        help="standard deviation of the pitch, deg (instead of --pitch-var)",
+    )
+    g.add_argument(
+        "--rig",
+        default=None,
+        help="the distribution of a rig: 'wheelchair', 'screen' or a RIG.yaml (instead of the options above)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -151,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .datasets import DATASETS
     from .models import MODELS
     from .render import RENDERERS
+    from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
 
     formats = DATASETS.names()  # the registries' names: listing them imports no reader, renderer or model
     renderers = RENDERERS.names(benchmark_only=False)
@@ -173,14 +214,38 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render both eyes of a face (image or .glb) at a new head pose into an .npz")
     r.add_argument("input", nargs="?", type=Path, help="face image or facemesh .glb (default: the built-in sample)")
     r.add_argument("-o", "--output", type=Path, required=True, help="output .npz")
-    r.add_argument("--yaw", type=finite_float, default=None, help="head yaw, degrees (with --pitch)")
-    r.add_argument("--pitch", type=finite_float, default=None, help="head pitch, degrees (with --yaw)")
-    r.add_argument("--original-pose", action="store_true", help="keep the detected head pose")
-    r.add_argument("--seed", type=_seed, default=0, help="seed of the sampled pose (no --yaw/--pitch)")
     r.add_argument(
-        "--distance-to-camera", type=finite_float, default=None, help="head distance in mm (default: the photo's)"
+        "--yaw",
+        type=finite_float,
+        default=None,
+        help="absolute head yaw, degrees, not relative to the photo's pose: the paper's R(yaw, pitch) in the "
+        "camera frame, the head on the optical axis (0 = facing the camera; + = turned toward the image's left); "
+        "with --pitch (default: both drawn from the head-pose distribution)",
     )
-    r.add_argument("--renderer", choices=renderers, default="raycast", help="default raycast")
+    r.add_argument(
+        "--pitch",
+        type=finite_float,
+        default=None,
+        help="absolute head pitch, degrees, as --yaw (+ = face turned up, the camera below the face); with --yaw",
+    )
+    r.add_argument(
+        "--original-pose",
+        action="store_true",
+        help="keep the photo's own head pose and distance (reproduces gazeaug normalize); not with --yaw/--pitch",
+    )
+    r.add_argument(
+        "--seed",
+        type=_seed,
+        default=None,
+        help="seed of the head pose drawn from the distribution; not with --yaw/--pitch or --original-pose (default 0)",
+    )
+    r.add_argument(
+        "--distance-to-camera",
+        type=finite_float,
+        default=None,
+        help="camera to the point between the eyes, mm (default: the photo's distance); not with --original-pose",
+    )
+    r.add_argument("--renderer", choices=renderers, default="raycast", help=RENDERER_HELP)
     _add_input_options(r)
     _add_gaze_options(r)
     _add_normalization_options(r)
@@ -195,8 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=16,
         help=f"number of augmented samples (default 16, at most {MAX_PREVIEW})",
     )
-    pv.add_argument("--seed", type=_seed, default=0)
-    pv.add_argument("--renderer", choices=renderers, default="raycast")
+    pv.add_argument("--seed", type=_seed, default=0, help="seed of the head poses drawn (default 0)")
+    pv.add_argument("--renderer", choices=renderers, default="raycast", help=RENDERER_HELP)
     _add_input_options(pv)
     _add_gaze_options(pv)
     _add_normalization_options(pv)
@@ -211,7 +276,14 @@ def build_parser() -> argparse.ArgumentParser:
         a.add_argument("-o", "--output", type=Path, required=True, help="output .h5")
         a.add_argument("--format", choices=formats, help=format_help)
         _add_engine_options(a)
-        a.add_argument("--seed", type=_seed, default=0)
+        a.add_argument(
+            "--seed",
+            type=_seed,
+            default=0,
+            help="seed of the head poses drawn (sample i draws from [seed, i]) (default 0)"
+            if name == "augment"
+            else "recorded with the settings; normalizing draws nothing at random (default 0)",
+        )
         a.add_argument("--resume", action="store_true", help="continue an interrupted run (OUT.h5.part)")
         a.add_argument("--overwrite", action="store_true", help="replace an existing complete OUT.h5")
         a.add_argument("--limit", type=_positive_int, default=None, help="only the first N samples")
@@ -221,15 +293,20 @@ def build_parser() -> argparse.ArgumentParser:
             a.add_argument(
                 "--per-sample", type=_positive_int, default=4, help="K augmented samples per input sample (default 4)"
             )
-            a.add_argument("--renderer", choices=renderers, default="raycast")
+            a.add_argument("--renderer", choices=renderers, default="raycast", help=RENDERER_HELP)
             _add_distribution_options(a)
 
     t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
     t.add_argument("train", type=Path, help="training set (.h5 from augment or normalize-dataset)")
     t.add_argument("-o", "--output", type=Path, required=True, help="model file (.pt)")
     tv = t.add_mutually_exclusive_group()
-    tv.add_argument("--val", type=Path, default=None, help="validation set (.h5)")
-    tv.add_argument("--val-subjects", nargs="+", default=None, help="hold these subjects out for validation")
+    tv.add_argument("--val", type=Path, default=None, help="a validation set (.h5) (default: no validation)")
+    tv.add_argument(
+        "--val-subjects",
+        nargs="+",
+        default=None,
+        help="hold these subjects of the training set out, to validate on (default: no validation)",
+    )
     t.add_argument(
         "--epochs",
         type=_positive_int,
@@ -243,27 +320,44 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step (default: fitted to the training set's size, rows / 128 as a power of two, 32 to 256)",
     )
-    t.add_argument("--lr", type=finite_float, default=1e-3)
-    t.add_argument("--seed", type=_seed, default=0)
-    t.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    t.add_argument("--model", choices=MODELS.names(), default="mobilenet_gaze", help="registered model name")
+    t.add_argument("--lr", type=finite_float, default=1e-3, help=LR_HELP)
+    t.add_argument(
+        "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
+    )
+    t.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help="where to train; auto: CUDA when present, else the CPU (default auto)",
+    )
+    t.add_argument(
+        "--model",
+        choices=MODELS.names(),
+        default="mobilenet_gaze",
+        help="the gaze model's architecture, a registered name (default mobilenet_gaze)",
+    )
     _add_train_input_options(t)
-    t.add_argument("--resume", action="store_true", help="continue from the model's checkpoint")
-    t.add_argument("--quiet", action="store_true")
+    t.add_argument("--resume", action="store_true", help="continue from the checkpoint beside the model (OUT.ckpt.pt)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = sub.add_parser("evaluate", help="angular error of a model on a raw dataset or a normalized .h5")
-    ev.add_argument("model", type=Path)
+    ev.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
     ev.add_argument("dataset", type=Path, help="a dataset folder (any reader) or a normalized .h5")
     ev.add_argument("-o", "--output", type=Path, required=True, help="report folder (errors.json/.csv/_hist.png)")
     ev.add_argument("--format", choices=formats, help=format_help)
-    ev.add_argument("--limit", type=_positive_int, default=None)
-    ev.add_argument("--quiet", action="store_true")
+    ev.add_argument("--limit", type=_positive_int, default=None, help="only the first N samples of a dataset folder")
+    ev.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_engine_options(ev)
 
     pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
-    pr.add_argument("model", type=Path)
-    pr.add_argument("image", type=Path)
-    pr.add_argument("--camera", type=Path, help="calibration file (default: a documented default camera)")
+    pr.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
+    pr.add_argument("image", type=Path, help="face image (the largest face is used)")
+    pr.add_argument(
+        "--camera",
+        type=Path,
+        help="calibration file (default: focal length max(W, H) px, principal point at the image centre, "
+        "with a warning)",
+    )
     pr.add_argument("-o", "--output", type=Path, default=None, help="picture with the gaze arrow (.png/.jpg)")
 
     tk = sub.add_parser(
@@ -285,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--camera",
         type=Path,
         help="the source's calibration file (default: the rig's camera when the frame size is the rig's, "
-        "else a documented default camera)",
+        "else focal length max(W, H) px, principal point at the image centre)",
     )
     tk.add_argument(
         "--rig", help="a rig (built-in name or RIG.yaml) with targets and planes: point of gaze and selection"
@@ -297,8 +391,19 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="frame rate of a folder of images (default: its sequence.json, else 30)",
     )
-    tk.add_argument("--dwell", type=finite_float, default=0.6, help="seconds on a target to select it (default 0.6)")
-    tk.add_argument("--margin", type=finite_float, default=5.0, help="angular margin of a target, deg (default 5)")
+    tk.add_argument(
+        "--dwell",
+        type=finite_float,
+        default=0.6,
+        help=f"seconds on a target to select it (default 0.6, at most {MAX_DWELL_S:g})",
+    )
+    tk.add_argument(
+        "--margin",
+        type=finite_float,
+        default=5.0,
+        help="how far off a target, in degrees of gaze, still counts as looking at it "
+        f"(default 5, at most {MAX_MARGIN_DEG:g})",
+    )
     tk.add_argument("--no-smoothing", action="store_true", help="no One-Euro smoothing of the gaze")
     tk.add_argument("--static", action="store_true", help="detect the face afresh in every frame (no tracking)")
     tk.add_argument("--no-video", action="store_true", help="do not write overlay.mp4")
@@ -329,11 +434,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="CSV: start_s,end_s,target (a rig target's name) or start_s,end_s,x_mm,y_mm,z_mm (rig frame)",
     )
     cb.add_argument("--camera", type=Path, help="the source's calibration file (as for track)")
-    cb.add_argument("--settle", type=finite_float, default=0.3, help="seconds left out at the start of each look (0.3)")
+    cb.add_argument(
+        "--settle", type=finite_float, default=0.3, help="seconds left out at the start of each look (default 0.3)"
+    )
     cb.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ex = sub.add_parser("export", help="export a model to ONNX")
-    ex.add_argument("model", type=Path)
+    ex.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
     ex.add_argument("-o", "--output", type=Path, required=True, help="output .onnx")
 
     sm = sub.add_parser("simulate", help="simulated subjects with known gaze, written as a folder dataset")
@@ -364,7 +471,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="no identity draws: every subject looks like its photo (only the eye-axis offset is drawn)",
     )
-    sm.add_argument("--seed", type=_seed, default=0)
+    sm.add_argument(
+        "--seed", type=_seed, default=0, help="everything drawn (identities, poses, gaze) derives from it (default 0)"
+    )
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
     sm.add_argument("--overwrite", action="store_true", help="replace an existing dataset folder that simulate wrote")
     sm.add_argument(
@@ -388,7 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="a --sequence's subject from this seed (default --seed): the same person in sequences of other seeds",
     )
-    sm.add_argument("--quiet", action="store_true")
+    sm.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_engine_options(sm, block_size=False)  # one face per block
 
     xp = sub.add_parser("experiment", help="original vs. augmented training on the same data (the paper's Table 1)")
@@ -407,10 +516,19 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="a larger simulated setup: 400 training images per face and 200 per test set (default 60 and 60)",
     )
+    xp.add_argument(
+        "--per-face",
+        type=_positive_int,
+        default=None,
+        metavar="N",
+        help="images per face in every simulated set of the built-in setup (default 60; --large: 400 and 200)",
+    )
     xp.add_argument("-o", "--output", type=Path, required=True, help="report folder")
     xp.add_argument("--train-format", choices=formats, default=None, help=format_help)
     xp.add_argument("--test-format", choices=formats, default=None, help=format_help)
-    xp.add_argument("--per-sample", type=_positive_int, default=4)
+    xp.add_argument(
+        "--per-sample", type=_positive_int, default=4, help="K augmented samples per training sample (default 4)"
+    )
     xp.add_argument(
         "--epochs",
         type=_positive_int,
@@ -425,7 +543,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step, both models (default: fitted to the augmented set's size, as gazeaug train fits it)",
     )
-    xp.add_argument("--lr", type=finite_float, default=1e-3)
+    xp.add_argument("--lr", type=finite_float, default=1e-3, help=LR_HELP)
     _add_train_input_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
     xp.add_argument(
@@ -434,20 +552,30 @@ def build_parser() -> argparse.ArgumentParser:
         default=3,
         help="runs with seeds SEED, SEED+1, ...; every figure is their mean and standard deviation (default 3)",
     )
-    xp.add_argument("--workers", type=_count(MAX_WORKERS), default=1)
-    xp.add_argument("--quiet", action="store_true")
+    xp.add_argument(
+        "--workers",
+        type=_count(MAX_WORKERS),
+        default=1,
+        help=f"processes of the dataset runs (augment, normalize-dataset) (default 1, at most {MAX_WORKERS})",
+    )
+    xp.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_distribution_options(xp)
 
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
-    br.add_argument("--renderer", choices=RENDERERS.names(), default="raycast")
+    br.add_argument(
+        "--renderer",
+        choices=RENDERERS.names(),
+        default="raycast",
+        help="the renderer timed; pyrender is the paper's (pip install 'gazeaug[bench]') (default raycast)",
+    )
     br.add_argument("--n", type=_positive_int, default=2000, help="samples (two patches each; default 2000)")
     br.add_argument(
         "--per-face", type=_positive_int, default=16, help="samples per face before a new face (default 16)"
     )
     br.add_argument("--faces", type=Path, nargs="*", default=None, help="face images (default: the built-in sample)")
-    br.add_argument("--seed", type=_seed, default=0)
+    br.add_argument("--seed", type=_seed, default=0, help="seed of the head poses drawn (default 0)")
     br.add_argument(
         "--workers", type=_count(MAX_WORKERS), default=1, help=f"processes (default 1, at most {MAX_WORKERS})"
     )
@@ -549,7 +677,7 @@ def _report(path: Path, sample: Any) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from .augment import render_poses, sampled_placement, source_placement
+    from .augment import render_poses, sampled_placement, source_placement, warn_texture_shortfall
     from .errors import GazeAugError
     from .normalize import save_npz
     from .render import create_renderer
@@ -559,6 +687,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise GazeAugError("give both --yaw and --pitch (or neither, to sample a pose)")
     if args.original_pose and args.yaw is not None:
         raise GazeAugError("--original-pose and --yaw/--pitch exclude each other")
+    if args.original_pose or args.yaw is not None:  # options that only a drawn pose would use
+        fixed = "--original-pose" if args.original_pose else "--yaw/--pitch"
+        unused = [f"--{n.replace('_', '-')}" for n in _DISTRIBUTION_OPTIONS + ("seed",) if getattr(args, n) is not None]
+        if args.original_pose and args.distance_to_camera is not None:
+            unused.append("--distance-to-camera")
+        if unused:
+            raise GazeAugError(f"{', '.join(unused)}: not used with {fixed}, which sets the head pose itself")
+    args.seed = 0 if args.seed is None else args.seed
     dist = None if args.original_pose or args.yaw is not None else _distribution(args)
     asset, source = _face_asset(args, args.input)
     if args.original_pose:
@@ -570,6 +706,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
             assert dist is not None
             yaw, pitch = dist.sample(1, args.seed)[0]
         place = sampled_placement(asset, yaw, pitch, args.distance_to_camera)
+    if args.input is not None and args.input.suffix.lower() in (".glb", ".gltf"):  # its margin was chosen at build
+        warn_texture_shortfall(asset, [place], settings, source)
     scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)
     meta: dict[str, Any] = {"input": source, "seed": args.seed}
     if dist is not None:
@@ -976,6 +1114,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise GazeAugError("give both --train and --test, or neither (the built-in simulated setup)")
     if args.test_same_rig is not None and args.test is None:
         raise GazeAugError("--test-same-rig goes with --train and --test (the built-in setup simulates its own)")
+    if args.per_face is not None and (args.train is not None or args.large):
+        raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
     distribution = _distribution(args)  # a bad rig or distribution is refused before minutes of work
     defaults = TrainSettings()
     if args.train is None:
@@ -985,7 +1125,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         for face in args.faces or []:
             load_image_rgb(face)  # every photo readable before the simulation starts
         setup = builtin_setup(
-            args.output, extra_faces=args.faces or [], large=args.large, seed=args.seed, progress=not args.quiet
+            args.output,
+            extra_faces=args.faces or [],
+            large=args.large,
+            seed=args.seed,
+            progress=not args.quiet,
+            sizes=None if args.per_face is None else (args.per_face, args.per_face),
         )
         args.train, args.test, args.test_same_rig = setup.train, setup.test, setup.test_same_rig
     settings = ExperimentSettings(

@@ -27,16 +27,21 @@ key                       shape, dtype         meaning
 ``sources/labels``        (M, 2, 2) float32    its original (head pose, gaze) (pitch, yaw) rad, face frame
 ========================  ===================  ==================================================
 
-File attributes: ``gazeaug_version``, ``kind`` (``augment`` or
-``normalize-dataset``), ``dataset``, ``dataset_format``, ``settings`` (JSON of
-every parameter: normalization, distribution, K, seed, renderer), ``complete``
-(True only once the run finished), ``rows_done`` and ``next_source_index``.
+File attributes (docs/datasets.md has them field by field): ``gazeaug_version``,
+``kind`` (``augment`` or ``normalize-dataset``), ``dataset``, ``dataset_format``,
+``settings`` (JSON of every parameter that shapes the rows), ``selection`` (JSON:
+which samples of which dataset), ``complete`` (True only once the run finished),
+``rows_done`` and ``sources_done`` (rows and ``sources/*`` entries made durable
+by the last flush), ``next_source_index`` and ``skipped`` (a JSON list of
+``{source_index, image, reason}``).
 
-Chunked (64 rows) and gzip-compressed. While a run is going, the file is
-``OUT.h5.part``; it is renamed to ``OUT.h5`` only when complete, so a killed
-run never leaves a file that looks complete. ``--resume`` reopens the
-``.part`` file, drops rows past the last flush and continues after
-``next_source_index``.
+Per-row datasets: chunks of 64 rows, gzip level 1 (shuffle filter on all but
+the eye patches); ``sources/*``: chunks of 1024, uncompressed. While a run is
+going, the file is ``OUT.h5.part``; it is renamed to ``OUT.h5`` only when
+complete, so a killed run never leaves a file that looks complete.
+``--resume`` reopens the ``.part`` file when ``settings`` and ``selection``
+are identical (otherwise it refuses, naming each difference), drops rows past
+the last flush and continues at ``next_source_index``.
 """
 
 from __future__ import annotations

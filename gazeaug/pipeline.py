@@ -1,9 +1,11 @@
 """From an image (or a saved mesh) to what the gazeaug stages need: landmarks, pose, face model, mesh.
 
 The input path itself (image and camera, detector, face, pose) is facemesh's
-(:mod:`facemesh.build`), shared with ``facemesh build``; this module adds what
-augmentation wants of it: meshes with a wider texture margin, so the renderer's
-background rings find the photo's surroundings.
+(:mod:`facemesh.build`), shared with ``facemesh build``, and so are its mesh
+settings: a photo rendered directly builds the same mesh, with the same texture
+margin, as the ``.glb`` that ``facemesh build`` writes of it, so the two render
+alike (the margin is wide enough for the renderer's background rings:
+:class:`facemesh.mesh.BuildSettings`).
 """
 
 from __future__ import annotations
@@ -27,9 +29,9 @@ __all__ = [
     "load_mesh",
 ]
 
-#: Mesh settings for augmentation: a wider texture margin than facemesh's
-#: default, so the background rings find the photo's surroundings.
-MESH_SETTINGS = BuildSettings(texture_margin=0.4)
+#: Mesh settings for augmentation: facemesh's defaults (``facemesh build``'s), so that
+#: rendering a photo and rendering its ``.glb`` agree.
+MESH_SETTINGS = BuildSettings()
 
 
 def default_landmark_model() -> LandmarkModel:

@@ -345,3 +345,17 @@ def test_sparse_face_model_takes_the_built_in_points():
     assert np.array_equal(model.vertices_mm, builtin_face_model().vertices_mm[idx])
     with pytest.raises(InputError, match="layout"):
         sparse_face_model("dlib5")
+
+
+def test_derive_mediapipe_writes_the_packaged_file_only_when_asked(capsys):
+    """Without -o or --write-packaged the derivation refuses (exit 2) before any work, and the shipped file stays."""
+    from facemesh.face_models import derive_mediapipe
+
+    before = derive_mediapipe.PACKAGED_MODEL.read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        derive_mediapipe.main([])
+    assert exc.value.code == 2
+    assert "--output" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        derive_mediapipe.main(["-o", "x.npz", "--write-packaged"])
+    assert derive_mediapipe.PACKAGED_MODEL.read_bytes() == before

@@ -97,6 +97,11 @@ def test_bench_prints_one_json_line(capsys):
         (["render", "{glb}", "--gaze-target", "0", "0", "nan", "-o", "{out}"], "finite"),
         (["normalize", "{glb}", "-o", "{out}"], "face.glb"),
         (["render", "{glb}", "--rig", "nowhere", "-o", "{out}"], "nowhere"),
+        # options a fixed pose would silently ignore are refused
+        (["render", "{glb}", "--yaw", "0", "--pitch", "30", "--rig", "wheelchair", "-o", "{out}"], "--rig: not used"),
+        (["render", "{glb}", "--yaw", "0", "--pitch", "30", "--seed", "3", "-o", "{out}"], "--seed: not used"),
+        (["render", "{glb}", "--original-pose", "--yaw-std", "5", "-o", "{out}"], "--yaw-std: not used"),
+        (["render", "{glb}", "--original-pose", "--distance-to-camera", "500", "-o", "{out}"], "--distance-to-camera"),
     ],
 )
 def test_bad_input_exits_2_and_writes_nothing(glb, tmp_path, capsys, args, message):

@@ -343,3 +343,99 @@ def test_ring_vertices_name_the_contour_vertex_they_grew_from(assets):
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     np.testing.assert_allclose(cross / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)), 0.0, atol=1e-9)
     assert ((a * b).sum(axis=1) > 0).all()  # the same side of the centre, farther out
+
+
+# --------------------------------------------------------------------------- texture margin (docs/face_model.md)
+
+#: The poses of the margin tests: heads turned 40 deg, where the background rings show most.
+TURNED = [(y, p) for y in (-40, 40) for p in (-20, 0, 30)]
+
+
+def _grey(sample, side):
+    import cv2
+
+    return cv2.cvtColor(sample.eye(side).image, cv2.COLOR_RGB2GRAY).astype(float)
+
+
+def _renders(mesh, turned=TURNED):
+    asset = face_asset(mesh)
+    places = [sampled_placement(asset, np.radians(y), np.radians(p)) for y, p in turned]
+    return asset, places, render_poses(create_renderer("raycast").scene(asset.render_mesh), asset, places)
+
+
+def _glb(mesh, path):
+    from facemesh.gltf import load_glb, save_glb
+
+    save_glb(mesh, path)
+    return load_glb(path)
+
+
+@pytest.mark.parametrize("name", ["astronaut.png", "pexels/image01.jpg"])
+def test_a_glb_with_the_default_margin_renders_like_the_photo(fits, faces_dir, tmp_path, name):
+    """``gazeaug render face.glb`` (``facemesh build``'s default margin) = the render of the whole, uncropped photo.
+
+    The reference is independent of any default: the same fit textured with the whole photo (a margin past
+    its edges). image01 at yaw 40, pitch -20 is where the former direct-path margin, 0.4, was 50 grey
+    levels off; the astronaut is where 0.15 was 177 off.
+    """
+    from facemesh.build import mesh_for_fit as facemesh_mesh_for_fit
+    from facemesh.mesh import BuildSettings
+    from gazeaug.augment import texture_shortfall
+
+    face_photo(faces_dir, name)
+    fit = fits[name]
+    _, _, whole = _renders(facemesh_mesh_for_fit(fit, BuildSettings(texture_margin=2.0)))
+    built = facemesh_mesh_for_fit(fit)  # what `facemesh build` writes
+    asset, places, from_glb = _renders(_glb(built, tmp_path / "face.glb"))
+    _, _, direct = _renders(mesh_for_fit(fit))  # what `gazeaug render photo` builds in memory
+    for (y, p), a, b, ref in zip(TURNED, from_glb, direct, whole):
+        for side in ("left", "right"):
+            for got in (a, b):
+                d = np.abs(_grey(got, side) - _grey(ref, side))
+                assert d.max() <= 4 and d.mean() <= 0.05, (name, y, p, side, d.max(), d.mean())
+    np.testing.assert_array_equal(texture_shortfall(asset, places), 0.0)  # so no warning
+
+
+def test_texture_shortfall_flags_the_renders_a_tight_crop_changes(fits, faces_dir, tmp_path):
+    """Patches the check leaves unflagged match the whole photo's render; those a tight crop spoils are flagged."""
+    from facemesh.build import mesh_for_fit as facemesh_mesh_for_fit
+    from facemesh.mesh import BuildSettings
+    from gazeaug.augment import texture_shortfall
+
+    name = face_photo(faces_dir, "business-person.png", any_face=True).relative_to(faces_dir).as_posix()
+    fit = fits[name]
+    _, _, whole = _renders(facemesh_mesh_for_fit(fit, BuildSettings(texture_margin=2.0)))
+    spoiled = 0
+    for margin in (0.15, 0.4):
+        asset, places, got = _renders(
+            _glb(facemesh_mesh_for_fit(fit, BuildSettings(texture_margin=margin)), tmp_path / "f.glb")
+        )
+        short = texture_shortfall(asset, places)
+        assert short.shape == (len(TURNED), 2)
+        for k, (a, ref) in enumerate(zip(got, whole)):
+            for j, side in enumerate(("left", "right")):
+                d = np.abs(_grey(a, side) - _grey(ref, side)).max()
+                if short[k, j] == 0:
+                    assert d <= 4, (margin, TURNED[k], side, d)
+                spoiled += d > 20
+    assert spoiled >= 2  # the tight crop costs some of these renders (not vacuous): all of them flagged
+
+
+def test_gazeaug_render_warns_when_a_glb_crop_is_too_tight(fits, faces_dir, tmp_path, capsys):
+    from facemesh.build import mesh_for_fit as facemesh_mesh_for_fit
+    from facemesh.gltf import save_glb
+    from facemesh.mesh import BuildSettings
+    from gazeaug.cli import main
+
+    fit = fits["astronaut.png"]
+    tight, default = tmp_path / "tight.glb", tmp_path / "default.glb"
+    save_glb(facemesh_mesh_for_fit(fit, BuildSettings(texture_margin=0.15)), tight)
+    save_glb(facemesh_mesh_for_fit(fit), default)
+    for glb, warned in ((tight, True), (default, False)):
+        assert main(["render", str(glb), "--yaw", "40", "--pitch", "0", "-o", str(tmp_path / f"{glb.stem}.npz")]) == 0
+        err = capsys.readouterr().err
+        assert ("texture crop is too tight" in err) == warned, err
+        assert ("--texture-margin" in err) == warned
+    # the pose decides: the same tight crop suffices for the photo's own, frontal view
+    assert main(["render", str(tight), "--yaw", "0", "--pitch", "0", "-o", str(tmp_path / "front.npz")]) == 0
+    assert "texture crop is too tight" not in capsys.readouterr().err

@@ -1,7 +1,8 @@
 """Derive the built-in MediaPipe-topology face model from inputs anyone can get with pip.
 
-Run ``python -m facemesh.face_models.derive_mediapipe`` to rebuild
-``facemesh/face_models/mediapipe468.npz``. The inputs are face photos that
+Run ``python -m facemesh.face_models.derive_mediapipe -o model.npz`` to derive it
+again, and ``--write-packaged`` to replace
+``facemesh/face_models/mediapipe468.npz``, the file the package loads. The inputs are face photos that
 ship inside installed wheels and MediaPipe's own 3D landmark output on them:
 the two public-domain portraits (scikit-image's ``astronaut`` and
 matplotlib's ``sample_data/grace_hopper.jpg``) and the 100 face crops of
@@ -266,17 +267,27 @@ def derive() -> dict[str, NDArray[np.generic]]:
     return derive_from_landmarks(*derivation_inputs())
 
 
+PACKAGED_MODEL = Path(__file__).with_name("mediapipe468.npz")
+
+
 def main(argv: list[str] | None = None) -> None:
     """Command-line entry: write the model file."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, default=Path(__file__).with_name("mediapipe468.npz"))
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("-o", "--output", type=Path, help="write the model here (an .npz file)")
+    where.add_argument(
+        "--write-packaged",
+        action="store_true",
+        help=f"replace the model file the package loads ({PACKAGED_MODEL.name}, beside this module)",
+    )
     args = parser.parse_args(argv)
     from ..io import atomic_write
 
+    output = PACKAGED_MODEL if args.write_packaged else args.output
     arrays = derive()
-    with atomic_write(args.output) as fh:
+    with atomic_write(output) as fh:
         np.savez_compressed(fh, **arrays)
-    print(f"wrote {args.output}: {len(arrays['vertices_mm'])} points, {len(arrays['triangles'])} triangles")
+    print(f"wrote {output}: {len(arrays['vertices_mm'])} points, {len(arrays['triangles'])} triangles")
 
 
 if __name__ == "__main__":

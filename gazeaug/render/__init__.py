@@ -2,7 +2,7 @@
 
 ``raycast`` (default; Open3D ``RaycastingScene``, CPU), ``filament`` (Open3D's
 offscreen Filament renderer; GPU or Mesa) and, for benchmarks only,
-``pyrender`` (the paper's renderer; ``pip install gazeaug[bench]``).
+``pyrender`` (the paper's renderer; ``pip install -e '.[bench]'`` from a clone).
 
 Renderers are registered by name in :data:`RENDERERS` (a
 :class:`gazeaug.registry.Registry`, the style models and dataset readers share);

@@ -1,4 +1,4 @@
-"""pyrender (the paper's renderer), for benchmarks only: ``pip install gazeaug[bench]``.
+"""pyrender (the paper's renderer), for benchmarks only: ``pip install -e '.[bench]'`` from a clone.
 
 OpenGL rasterization through EGL (``PYOPENGL_PLATFORM=egl`` is set unless the
 user chose another platform); unlit (flat) shading of the textured mesh.
