@@ -84,6 +84,12 @@ def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAs
     """
     model, kp = mesh.model_vertices_mm, keypoints or mesh.model_keypoints
     if model is None or kp is None:
+        if model is not None and mesh.face_model_name not in BUILTIN_MODELS:
+            raise GazeAugError(
+                f"the mesh's face model ({mesh.face_model_name!r}, {len(model)} points) has no key points (eye and "
+                "mouth corners): give them with --keypoints (a layout name or six indices), or build the mesh "
+                "with facemesh build --keypoints"
+            )
         if mesh.face_model_name not in BUILTIN_MODELS:
             raise GazeAugError(
                 f"the mesh does not record its face model's points and key points, and {mesh.face_model_name!r} "

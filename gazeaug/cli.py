@@ -640,7 +640,10 @@ def _face_asset(args: argparse.Namespace, path: Path | None) -> tuple[Any, str]:
     from .pipeline import load_mesh, mesh_for_fit
 
     if path is not None and path.suffix.lower() in (".glb", ".gltf"):
-        return face_asset(load_mesh(path)), str(path)
+        from facemesh.face_models import parse_keypoints
+
+        keypoints = None if args.keypoints is None else parse_keypoints(args.keypoints)
+        return face_asset(load_mesh(path), keypoints), str(path)
     fit = _fit_input(args, path)
     return face_asset(mesh_for_fit(fit)), fit.source
 

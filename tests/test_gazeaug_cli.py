@@ -113,3 +113,26 @@ def test_bad_input_exits_2_and_writes_nothing(glb, tmp_path, capsys, args, messa
     assert message in capsys.readouterr().err
     assert not out.exists()
     assert not list(tmp_path.glob(".*.part")) and not list(tmp_path.glob("*.part"))
+
+
+def test_render_points_only_asset_asks_for_keypoints(tmp_path, capsys, detector):
+    """A .glb of a face model without key points (a sparse layout) names --keypoints, and renders with it."""
+    from facemesh.build import sample_image
+    from facemesh.cli import main as facemesh_main
+    from facemesh.face_models.layouts import sparse_face_model
+    from facemesh.io import save_image_rgb
+    from facemesh.landmarks import select_face
+
+    model, idx = sparse_face_model("dlib68")
+    photo = tmp_path / "photo.png"
+    save_image_rgb(photo, sample_image())
+    np.save(tmp_path / "lm68.npy", select_face(detector.detect(sample_image())).points_px[idx])
+    np.save(tmp_path / "model68.npy", model.vertices_mm)
+    glb = tmp_path / "f68.glb"
+    build = ["build", str(photo), "-o", str(glb), "--landmarks", str(tmp_path / "lm68.npy")]
+    assert facemesh_main([*build, "--face-model", str(tmp_path / "model68.npy")]) == 0
+    out = tmp_path / "r.npz"
+    assert main(["render", str(glb), "--yaw", "0", "--pitch", "20", "-o", str(out)]) == 2
+    assert "give them with --keypoints" in capsys.readouterr().err and not out.exists()
+    assert main(["render", str(glb), "--yaw", "0", "--pitch", "20", "--keypoints", "dlib68", "-o", str(out)]) == 0
+    assert out.is_file()
