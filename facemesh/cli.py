@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .face_models import KEYPOINTS
 from .types import FaceMeshError
 
 __all__ = [
@@ -41,12 +42,12 @@ REMEDIES = {
     "format": "pass --format",
     "landmarks": "pass --landmarks with the model's own points",
     "face_model": "pass --face-model (the 3D points your landmarks correspond to)",
-    "keypoints": "pass --keypoints (a layout: mediapipe, mpii6, dlib68; or the indices RO,RI,LI,LO[,MR,ML])",
+    "keypoints": f"pass --keypoints (a layout: {', '.join(KEYPOINTS)}; or the indices RO,RI,LI,LO[,MR,ML])",
 }
 
 #: Help of the ``--keypoints`` option (both command lines).
 KEYPOINTS_HELP = (
-    "which face model points are the eye and mouth corners: a layout (mediapipe, mpii6, dlib68) or the indices "
+    "which face model points are the eye and mouth corners: a layout (" + ", ".join(KEYPOINTS) + ") or 4 or 6 indices "
     "RO,RI,LI,LO[,MR,ML] (right eye outer, inner, left eye inner, outer, mouth right, left); default: what the "
     "model file says"
 )
@@ -169,8 +170,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--texture-margin",
         type=finite_float,
         default=BuildSettings.texture_margin,
-        help="margin of photo kept around the face in the texture, a fraction of the face's size "
-        f"(default {BuildSettings.texture_margin:g}: what gazeaug render needs up to 40 deg, docs/face_model.md)",
+        help="margin of photo kept around the face in the texture, a fraction of the landmarks' bounding box's "
+        f"larger side (default {BuildSettings.texture_margin:g}: what gazeaug render needs up to 40 deg, "
+        "docs/face_model.md)",
     )
     b.add_argument("--atlas", action="store_true", help="repack the texture into a compact atlas (xatlas)")
     b.add_argument(

@@ -87,7 +87,7 @@ def face_asset(mesh: FaceMesh, keypoints: FaceKeypoints | None = None) -> FaceAs
         if model is not None and mesh.face_model_name not in BUILTIN_MODELS:
             raise GazeAugError(
                 f"the mesh's face model ({mesh.face_model_name!r}, {len(model)} points) has no key points (eye and "
-                "mouth corners): give them with --keypoints (a layout name or six indices), or build the mesh "
+                "mouth corners): give them with --keypoints (a layout name or 4 or 6 indices), or build the mesh "
                 "with facemesh build --keypoints"
             )
         if mesh.face_model_name not in BUILTIN_MODELS:

@@ -14,6 +14,7 @@ How the docs are tested (docs/index.md, "How the docs are tested", says the same
   blocks.
 - A ```` ```yaml ```` block that names a file of the project (``# data_samples/rigs/X.yaml``)
   must hold the same data as that file; any other rig block must load as a rig.
+- An ```` ```xml ```` block is a calibration file: it must load (:func:`facemesh.load_camera`).
 - ```` ```csv ````, ```` ```text ```` and unlabelled blocks are examples of outputs or formats
   and are not run.
 
@@ -86,14 +87,16 @@ def blocks(doc: Path) -> list[Block]:
     out: list[Block] = []
     i = 0
     while i < len(lines):
-        m = re.match(r"^```\s*(\S*)\s*(\S*)", lines[i])
+        m = re.match(r"^( {0,4})```\s*(\S*)\s*(\S*)", lines[i])  # a fence, maybe indented in a list item
         if m:
+            indent = m.group(1)
             j = i + 1
-            while j < len(lines) and not lines[j].startswith("```"):
+            while j < len(lines) and not lines[j].startswith(indent + "```"):
                 j += 1
             if j == len(lines):
                 raise ValueError(f"{doc}:{i + 1}: fenced block never closed")
-            out.append(Block(doc, i + 1, m.group(1), m.group(2), "\n".join(lines[i + 1 : j])))
+            text = "\n".join(line[len(indent) :] if line.startswith(indent) else line for line in lines[i + 1 : j])
+            out.append(Block(doc, i + 1, m.group(2), m.group(3), text))
             i = j
         i += 1
     return out

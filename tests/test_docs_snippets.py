@@ -292,6 +292,11 @@ def test_doc_snippets_run(doc: Path, doc_inputs: Path, tmp_path: Path) -> None:
             _run_python(block, work)
         elif block.lang == "yaml":
             _check_yaml(block)
+        elif block.lang == "xml":
+            from facemesh import load_camera
+
+            (work / f"block_{block.line}.xml").write_text(block.text)
+            load_camera(work / f"block_{block.line}.xml")
     for check in AFTER_RUN.get(doc.name, ()):
         check(work)
 
@@ -325,7 +330,7 @@ def test_every_bash_block_is_a_command_or_marked_usage() -> None:
                         r"\bFACES|\bPEOPLE", command.text
                     ):
                         wrong.append(f"{block.where}: {command.text}")
-            assert block.lang in ("", "bash", "python", "yaml", "csv", "text"), (
+            assert block.lang in ("", "bash", "python", "yaml", "csv", "text", "xml"), (
                 f"{block.where}: language {block.lang!r}"
             )
     assert not wrong, "synopsis lines in runnable blocks (mark the block ```bash usage):\n" + "\n".join(wrong)
