@@ -400,3 +400,24 @@ def test_documented_h5_schema_is_the_written_one(tmp_path: Path) -> None:
     )
     documented_attrs = _documented_names(doc, "attribute")
     assert attributes == documented_attrs, f"{attributes ^ documented_attrs}"
+
+
+def test_commands_join_continuations_and_drop_comments() -> None:
+    """The block splitter on a hand-written block: continuations joined, comments (not quoted #) dropped."""
+    text = "# a comment\ngazeaug render x.glb \\\n    --yaw 10 --pitch 30 -o 'a #b.npz'   # at this pose\n\nls  -l\n"
+    block = Block(REPO / "README.md", 10, "bash", "", text)
+    assert commands(block) == [
+        Command(12, "gazeaug render x.glb --yaw 10 --pitch 30 -o 'a #b.npz'"),
+        Command(15, "ls  -l"),
+    ]
+    assert output_paths(commands(block)[0].text) == ["a #b.npz"]
+
+
+def test_a_failing_or_silent_command_fails_the_doc(tmp_path: Path) -> None:
+    """A command that exits non-zero, or does not write what it names with -o, fails with its doc and line."""
+    failing = Block(REPO / "docs" / "x.md", 3, "bash", "", "gazeaug render --no-such-option -o a.npz")
+    with pytest.raises(AssertionError, match=r"docs/x.md:4: .* exited 2"):
+        _run_bash(failing, tmp_path)
+    silent = Block(REPO / "docs" / "x.md", 3, "bash", "", "true -o never_written.txt")
+    with pytest.raises(AssertionError, match="did not write never_written.txt"):
+        _run_bash(silent, tmp_path)
