@@ -18,6 +18,7 @@ from doc_snippets import (
     CLI_NAMES,
     DOCS,
     REPO,
+    RUNNABLE_PROGRAMS,
     Block,
     Command,
     blocks,
@@ -201,6 +202,15 @@ def _check_not_run(command: Command, block: Block, why: str) -> None:
         for group in re.findall(r"\[([a-z,]+)\]", text):
             for extra in group.split(","):
                 assert extra in extras, f"{where}: no extra [{extra}] in pyproject.toml"
+    elif text.startswith("ray "):  # ray start / ray job submit [... -- COMMAND]: the options of both parts
+        ray_part, _, inner = text.partition(" -- ")
+        sub = re.match(r"ray ((?:job )?\w+)", ray_part)
+        assert sub is not None, f"{where}: {text}"
+        usage = _run([str(VENV_BIN / "ray"), *sub.group(1).split(), "--help"], REPO)
+        assert usage.returncode == 0, f"{where}: ray {sub.group(1)} --help: {usage.stderr[-500:]}"
+        for option in re.findall(r"(?<=\s)--[a-z][a-z-]*", ray_part):
+            assert option in usage.stdout, f"{where}: `ray {sub.group(1)}` has no option {option}"
+        _check_options(inner, where)
     elif text.startswith("make "):
         target = text.split()[1]
         done = _run(["make", "-n", "-C", str(REPO), target], REPO)
@@ -230,6 +240,11 @@ def _run_bash(block: Block, work: Path) -> None:
         if why is not None:
             _check_not_run(command, block, why)
             continue
+        program = Path(command.text.split()[0]).name
+        assert program in RUNNABLE_PROGRAMS, (
+            f"{where}: `{command.text}`: the docs test runs only {', '.join(RUNNABLE_PROGRAMS)} commands; "
+            "add this one to NOT_RUN in tests/doc_snippets.py with what to check instead"
+        )
         text = substitute(command.text)
         done = _run(text, work, shell=True)
         assert done.returncode == 0, (
@@ -418,6 +433,14 @@ def test_a_failing_or_silent_command_fails_the_doc(tmp_path: Path) -> None:
     failing = Block(REPO / "docs" / "x.md", 3, "bash", "", "gazeaug render --no-such-option -o a.npz")
     with pytest.raises(AssertionError, match=r"docs/x.md:4: .* exited 2"):
         _run_bash(failing, tmp_path)
-    silent = Block(REPO / "docs" / "x.md", 3, "bash", "", "true -o never_written.txt")
+    silent = Block(REPO / "docs" / "x.md", 3, "bash", "", "gazeaug --version -o never_written.txt")
     with pytest.raises(AssertionError, match="did not write never_written.txt"):
         _run_bash(silent, tmp_path)
+    # only facemesh, gazeaug and python run: anything else must be declared (and is then only checked)
+    unknown = Block(REPO / "docs" / "x.md", 3, "bash", "", f"touch {tmp_path / 'touched'}")
+    with pytest.raises(AssertionError, match="runs only facemesh, gazeaug, python"):
+        _run_bash(unknown, tmp_path)
+    assert not (tmp_path / "touched").exists()
+    assert not_run_reason("ray start --head --port 6379") is not None
+    with pytest.raises(AssertionError, match="has no option --no-such"):
+        _run_bash(Block(REPO / "docs" / "x.md", 3, "bash", "", "ray start --no-such 1"), tmp_path)
