@@ -217,6 +217,15 @@ def pitchyaw_to_vector(pitchyaw_rad: ArrayLike) -> NDArray[np.float64]:
     Returns:
         (..., 3) float64 unit vectors in the camera frame the angles refer to:
         ``(-cos p sin y, -sin p, -cos p cos y)``.
+
+    Examples (hand-derived: (0, 0) looks into the camera, along -z; pitch +90 deg
+    looks up, -y in a y-down frame; yaw +90 deg looks toward the image's left, -x):
+
+    >>> pitchyaw_to_vector([0.0, 0.0]).round(12) + 0.0
+    array([ 0.,  0., -1.])
+    >>> pitchyaw_to_vector([[np.pi / 2, 0.0], [0.0, np.pi / 2]]).round(12) + 0.0
+    array([[ 0., -1.,  0.],
+           [-1.,  0.,  0.]])
     """
     a = _as_points(pitchyaw_rad, 2, "pitchyaw_rad")
     p, y = a[..., 0], a[..., 1]
@@ -231,6 +240,11 @@ def vector_to_pitchyaw(vectors: ArrayLike) -> NDArray[np.float64]:
 
     Returns:
         (..., 2) float64 radians, (pitch, yaw); pitch in [-pi/2, pi/2], yaw in (-pi, pi].
+
+    Examples (a gaze 45 deg up, straight ahead; any length):
+
+    >>> np.degrees(vector_to_pitchyaw([0.0, -2.0, -2.0])).round(12) + 0.0
+    array([45.,  0.])
     """
     v = _as_points(vectors, 3, "vectors")
     n = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -312,6 +326,9 @@ def face_forward(rotation_head_to_camera: ArrayLike) -> NDArray[np.float64]:
 
     Returns:
         (..., 3) float64 unit vectors, camera frame.
+
+    >>> face_forward(np.eye(3))
+    array([-0., -0., -1.])
     """
     r = np.asarray(rotation_head_to_camera, dtype=np.float64)
     if r.shape[-2:] != (3, 3):
