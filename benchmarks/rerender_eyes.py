@@ -1,6 +1,6 @@
 """Augmentation's re-rendered eye against the truly rendered eye at a new head pose: where the iris lands.
 
-``python benchmarks/rerender_eyes.py [--identities 2] [--no-shape]``
+``python benchmarks/rerender_eyes.py [--identities 2] [--no-shape] [--eye-pitches -20 -10 0]``
 
 The simulator renders one subject (the built-in astronaut's face, drawn identities,
 the iris painted blue and the sclera green, no relighting, noise or kappa) at a `screen`-like head pose
@@ -18,6 +18,14 @@ iris's place in the eye opening and in the patch (re-rendered minus true, px; y 
 the largest differences of the gaze labels (deg), and the visible iris areas. With no pose change both agree exactly
 (the renderer reproduces normalization); the gaze signal is 0.13-0.17 px per degree
 of yaw and 0.04-0.06 px per degree of pitch (`benchmarks/eye_signal.py`).
+
+``--eye-pitches P ...``: instead of the default gazes, the eyes turned by P deg in the head
+(pitch; yaw -10, 0, +10 for each): the `wheelchair` task's users look about 18 deg down in
+the head, the `screen` users about 3 (docs/simulation.md). Each row then also gives the whole
+patch's difference: the mean absolute difference (0-255, all channels) between the
+re-rendered and the true patch once the re-rendered one is shifted so that its eye opening's
+centroid lies on the true one's (so the framing offset does not count), and the share of the
+eye opening that is iris (how much the lids cover) in each.
 """
 
 from __future__ import annotations
@@ -59,6 +67,30 @@ def iris_position(img: np.ndarray) -> tuple[float, float, float, float, int] | N
     return (x - float(ox.mean()), y - float(oy.mean()), x, y, int(iris.sum()))
 
 
+def patch_difference(true: np.ndarray, again: np.ndarray) -> tuple[float, float, float]:
+    """Whole-patch difference with the framing removed, and how much of each eye opening is iris.
+
+    Returns:
+        The mean absolute difference (0-255, all channels) between ``true`` and ``again`` shifted
+        (bilinear, border replicated) so that its eye opening's centroid lies on ``true``'s; the
+        iris's share of the eye opening in ``true`` and in ``again``.
+    """
+    import cv2
+
+    def opening(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        iris = dominant(img, 2)
+        return iris, iris | dominant(img, 1)
+
+    (iris_t, open_t), (iris_a, open_a) = opening(true), opening(again)
+    yt, xt = np.nonzero(open_t)
+    ya, xa = np.nonzero(open_a)
+    shift = np.array([[1.0, 0.0, xt.mean() - xa.mean()], [0.0, 1.0, yt.mean() - ya.mean()]])
+    h, w = true.shape[:2]
+    moved = cv2.warpAffine(again, shift, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    mad = float(np.abs(moved.astype(np.float64) - true.astype(np.float64)).mean())
+    return mad, float(iris_t.sum() / max(open_t.sum(), 1)), float(iris_a.sum() / max(open_a.sum(), 1))
+
+
 def main() -> None:
     """Run the comparison."""
     from facemesh.build import sample_image
@@ -74,7 +106,13 @@ def main() -> None:
     ap.add_argument(
         "--no-shape", action="store_true", help="identities without shape draws (the built-in face's shape, scale 1)"
     )
+    ap.add_argument(
+        "--eye-pitches", type=float, nargs="+", default=None, help="eye-in-head pitches, deg (rows per pitch)"
+    )
     args = ap.parse_args()
+    gazes = (
+        GAZES_DEG if args.eye_pitches is None else tuple((p, y) for p in args.eye_pitches for y in (-10.0, 0.0, 10.0))
+    )
     warnings.simplefilter("ignore")
     det = default_landmark_model()
     photo = PhotoFace.from_image(sample_image(), det, "astronaut")
@@ -84,7 +122,7 @@ def main() -> None:
     renderer = create_renderer("raycast", settings=norm)
     t = np.array([0.0, 0.0, 550.0])
     ra = rotation_from_yaw_pitch(0.0, math.radians(-15))
-    rows: dict[int, list[tuple[float, ...]]] = {turn: [] for turn in TURNS_DEG}
+    rows: dict[tuple[float, int], list[tuple[float, ...]]] = {}
     for ident in range(args.identities):
         d = draw_subject(s, np.random.default_rng(100 + ident))
         d = dataclasses.replace(d, iris_rgb=(0.0, 0.0, 255.0), glasses=None, kappa_deg=(0.0, 0.0))
@@ -93,7 +131,7 @@ def main() -> None:
         subj = SimSubject(photo, f"s{ident}", s, d)
         subj.sclera_rgb = (0.0, 255.0, 0.0)  # green, to find the eye opening
         mid = (subj.eye_centre["left"] + subj.eye_centre["right"]) / 2
-        for gp, gy in GAZES_DEG:
+        for gp, gy in gazes:
             look = rotation_from_yaw_pitch(math.radians(gy), math.radians(gp)) @ np.array([0.0, 0.0, -1.0])
             target_head = mid + 500.0 * look
             frame_a = subj.render(ra, t, ra @ target_head + t, k, (w, h), np.random.default_rng(1))
@@ -114,22 +152,28 @@ def main() -> None:
                 )
                 [again] = render_poses(scene, asset, [place], gaze_target_mm=ra @ target_head + t, settings=norm)
                 for side in ("left", "right"):
-                    ct, cr = iris_position(true.eye(side).image), iris_position(again.eye(side).image)
+                    it, ir = true.eye(side).image, again.eye(side).image
+                    ct, cr = iris_position(it), iris_position(ir)
                     if ct is None or cr is None:
                         continue
                     g_again, g_true = again.eye(side).gaze, true.eye(side).gaze
                     assert g_again is not None and g_true is not None  # a target was given
                     dl = np.degrees(g_again - g_true)
                     diff = [cr[i] - ct[i] for i in range(4)]
-                    rows[turn].append((*diff, float(dl[0]), float(dl[1]), ct[4], cr[4]))
+                    mad, share_t, share_r = patch_difference(it, ir)
+                    key = (gp if args.eye_pitches is not None else 0.0, turn)
+                    rows.setdefault(key, []).append(
+                        (*diff, float(dl[0]), float(dl[1]), ct[4], cr[4], mad, share_t, share_r)
+                    )
     summary = {}
 
     def stats(col: np.ndarray) -> list[float]:
         return [round(float(col.mean()), 2), round(float(col.min()), 2), round(float(col.max()), 2)]
 
-    for turn, rr in rows.items():
+    for (pitch, turn), rr in sorted(rows.items()):
         a = np.array(rr)
-        summary[f"turn_{turn}_deg"] = {
+        name = f"turn_{turn}_deg" if args.eye_pitches is None else f"eye_pitch_{pitch:g}_turn_{turn}_deg"
+        summary[name] = {
             "eyes": len(a),
             "iris_in_opening_dx_px": stats(a[:, 0]),
             "iris_in_opening_dy_px": stats(a[:, 1]),
@@ -140,6 +184,8 @@ def main() -> None:
                 round(float(np.abs(a[:, 5]).max()), 2),
             ],
             "iris_area_px_true_rerendered": [round(float(a[:, 6].mean()), 1), round(float(a[:, 7].mean()), 1)],
+            "patch_mad_aligned": stats(a[:, 8]),
+            "iris_share_of_opening_true_rerendered": [round(float(a[:, k].mean()), 3) for k in (9, 10)],
         }
     note = "[mean, min, max] over eyes and gazes; re-rendered minus true; y down"
     print(json.dumps({"note": note, **summary}))
