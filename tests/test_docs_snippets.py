@@ -75,10 +75,9 @@ def _clip(folder: Path, shared: Path | None) -> None:
     else:
         fps = 10.0
         seq = folder / "_sequence"
-        _must(
-            ["gazeaug", "simulate", "--sequence", "2", "--fps", "10", "--rig", "wheelchair", "-o", str(seq), "--quiet"],
-            folder,
-        )
+        rig = str(REPO / "data_samples" / "rigs" / "wheelchair_objects.yaml")  # a sequence needs targets
+        args = ["--sequence", "2", "--fps", "10", "--rig", rig, "-o", str(seq), "--quiet"]
+        _must(["gazeaug", "simulate", *args], folder)
         frames = [cv2.imread(str(p)) for p in sorted(seq.rglob("*.jpg"))]
         shutil.rmtree(seq)
     assert frames, "no frames for clip.mp4"
