@@ -45,6 +45,22 @@ REMEDIES = {
     "keypoints": f"pass --keypoints (a layout: {', '.join(KEYPOINTS)}; or the indices RO,RI,LI,LO[,MR,ML])",
 }
 
+#: The camera assumed without a calibration file (:func:`facemesh.camera.default_camera`), for help texts.
+DEFAULT_CAMERA_HELP = "focal length max(W, H) px, principal point at the image centre, no distortion, with a warning"
+#: Help of ``--camera`` for a face input (both command lines).
+CAMERA_HELP = (
+    f"calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze Camera.mat (default: {DEFAULT_CAMERA_HELP})"
+)
+#: Help of ``--face-model`` (both command lines).
+FACE_MODEL_HELP = (
+    "the 3D face model the landmarks correspond to: 'mediapipe' or a model file (.obj, .pbtxt, .txt, .csv, .npy; "
+    "mm) (default: mediapipe)"
+)
+#: Help of ``--face-index`` (both command lines).
+FACE_INDEX_HELP = (
+    "which face when there are several, by size: 0 = the largest, 1 = the second largest, ... (default: the largest)"
+)
+
 #: Help of the ``--keypoints`` option (both command lines).
 KEYPOINTS_HELP = (
     "which face model points are the eye and mouth corners: a layout (" + ", ".join(KEYPOINTS) + ") or 4 or 6 indices "
@@ -114,19 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
         "image", nargs="?", type=Path, help="face photo (default: the built-in sample, scikit-image's astronaut)"
     )
     b.add_argument("-o", "--output", type=Path, required=True, help="output .glb")
-    b.add_argument(
-        "--camera",
-        type=Path,
-        help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze Camera.mat (default: focal length "
-        "max(W, H) px, principal point at the image centre, no distortion, with a warning)",
-    )
-    b.add_argument(
-        "--face-index",
-        type=int,
-        default=None,
-        help="which face when there are several, by size: 0 = the largest, 1 = the second largest, ... "
-        "(default: the largest)",
-    )
+    b.add_argument("--camera", type=Path, help=CAMERA_HELP)
+    b.add_argument("--face-index", type=int, default=None, help=FACE_INDEX_HELP)
     b.add_argument(
         "--vertices",
         choices=("canonical", "backprojected", "landmarks3d"),
@@ -135,12 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
         "the camera ray through its landmark, at the posed model's depth; landmarks3d = on that ray, at the "
         "detector's own depth (MediaPipe) (default: backprojected)",
     )
-    b.add_argument(
-        "--face-model",
-        default=None,
-        help="the 3D face model the landmarks correspond to: 'mediapipe' or a model file (.obj, .pbtxt, .txt, "
-        ".csv, .npy; mm) (default: mediapipe)",
-    )
+    b.add_argument("--face-model", default=None, help=FACE_MODEL_HELP)
     b.add_argument(
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )

@@ -13,11 +13,19 @@ import math
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
-from facemesh.cli import KEYPOINTS_HELP, OneLineParser, finite_float
+from facemesh.cli import (
+    CAMERA_HELP,
+    DEFAULT_CAMERA_HELP,
+    FACE_INDEX_HELP,
+    FACE_MODEL_HELP,
+    KEYPOINTS_HELP,
+    OneLineParser,
+    finite_float,
+)
 from facemesh.cli import integer_in as _integer
 
 __all__ = ["main", "entry", "build_parser"]
@@ -95,29 +103,13 @@ def _engine(args: argparse.Namespace, *, local_workers: bool = True) -> Any:
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--camera",
-        type=Path,
-        help="calibration: OpenCV XML/YAML/JSON FileStorage or MPIIFaceGaze .mat (default: focal length max(W, H) "
-        "px, principal point at the image centre, no distortion, with a warning)",
-    )
+    p.add_argument("--camera", type=Path, help=CAMERA_HELP)
     p.add_argument(
         "--landmarks", type=Path, help="your own 2D landmarks (.npy/.json/.csv, N x 2 px); needs --face-model"
     )
-    p.add_argument(
-        "--face-model",
-        default=None,
-        help="the 3D face model the landmarks correspond to: 'mediapipe' or a model file (.obj, .pbtxt, .txt, "
-        ".csv, .npy; mm) (default: mediapipe)",
-    )
+    p.add_argument("--face-model", default=None, help=FACE_MODEL_HELP)
     p.add_argument("--keypoints", default=None, help=KEYPOINTS_HELP)
-    p.add_argument(
-        "--face-index",
-        type=int,
-        default=None,
-        help="which face when there are several, by size: 0 = the largest, 1 = the second largest, ... "
-        "(default: the largest)",
-    )
+    p.add_argument("--face-index", type=int, default=None, help=FACE_INDEX_HELP)
 
 
 def _add_normalization_options(p: argparse.ArgumentParser) -> None:
@@ -355,8 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument(
         "--camera",
         type=Path,
-        help="calibration file (default: focal length max(W, H) px, principal point at the image centre, "
-        "with a warning)",
+        help=f"calibration file (default: {DEFAULT_CAMERA_HELP})",
     )
     pr.add_argument("-o", "--output", type=Path, default=None, help="picture with the gaze arrow (.png/.jpg)")
 
@@ -379,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--camera",
         type=Path,
         help="the source's calibration file (default: the rig's camera when the frame size is the rig's, "
-        "else focal length max(W, H) px, principal point at the image centre)",
+        f"else {DEFAULT_CAMERA_HELP})",
     )
     tk.add_argument(
         "--rig", help="a rig (built-in name or RIG.yaml) with targets and planes: point of gaze and selection"
@@ -634,12 +625,17 @@ def _fit_input(args: argparse.Namespace, path: Path | None) -> Any:
     return fit_face(image, camera, detector, face_model=face_model, face_index=args.face_index, source=source)
 
 
+def _is_mesh_file(path: Path | None) -> TypeGuard[Path]:
+    """Whether a face input is a saved mesh (.glb/.gltf) rather than an image (None: the built-in photo)."""
+    return path is not None and path.suffix.lower() in (".glb", ".gltf")
+
+
 def _face_asset(args: argparse.Namespace, path: Path | None) -> tuple[Any, str]:
     """The face to render (from a .glb or an image) and its name."""
     from .augment import face_asset
     from .pipeline import load_mesh, mesh_for_fit
 
-    if path is not None and path.suffix.lower() in (".glb", ".gltf"):
+    if _is_mesh_file(path):
         from facemesh.face_models import parse_keypoints
 
         keypoints = None if args.keypoints is None else parse_keypoints(args.keypoints)
@@ -709,7 +705,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
             assert dist is not None
             yaw, pitch = dist.sample(1, args.seed)[0]
         place = sampled_placement(asset, yaw, pitch, args.distance_to_camera)
-    if args.input is not None and args.input.suffix.lower() in (".glb", ".gltf"):  # its margin was chosen at build
+    if _is_mesh_file(args.input):  # its texture margin was chosen when it was built
         warn_texture_shortfall(asset, [place], settings, source)
     scene = create_renderer(args.renderer, settings=settings).scene(asset.render_mesh)
     meta: dict[str, Any] = {"input": source, "seed": args.seed}

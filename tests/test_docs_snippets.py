@@ -254,13 +254,12 @@ def _run_bash(block: Block, work: Path) -> None:
 
 
 def _run_python(block: Block, work: Path) -> None:
-    script = work / f"snippet_{block.line}.py"
-    script.write_text(substitute(block.text))
+    script = _block_file(block, work, ".py")
     done = _run([sys.executable, script.name], work)
     assert done.returncode == 0, f"{block.where}: the Python snippet failed:\n{done.stderr[-3000:]}"
 
 
-def _check_yaml(block: Block) -> None:
+def _check_yaml(block: Block, work: Path) -> None:
     from gazeaug.sampling import load_rig
 
     data = yaml.safe_load(block.text)
@@ -270,7 +269,7 @@ def _check_yaml(block: Block) -> None:
         shipped = yaml.safe_load((REPO / m.group(1)).read_text())
         assert _same_data(data, shipped), f"{block.where}: differs from {m.group(1)}:\n{data}\n{shipped}"
     elif "camera_position_mm" in data:
-        load_rig(_yaml_file(block))
+        load_rig(_block_file(block, work, ".yaml"))
 
 
 def _same_data(a: object, b: object) -> bool:
@@ -284,13 +283,18 @@ def _same_data(a: object, b: object) -> bool:
     return a == b
 
 
-def _yaml_file(block: Block) -> Path:
-    import tempfile
+def _block_file(block: Block, work: Path, suffix: str) -> Path:
+    """The block's text (size substitutions applied) as a file in the document's folder."""
+    path = work / f"block_{block.line}{suffix}"
+    path.write_text(substitute(block.text))
+    return path
 
-    handle = tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False)
-    with handle:
-        handle.write(block.text)
-    return Path(handle.name)
+
+def _check_xml(block: Block, work: Path) -> None:
+    """A calibration file example must load."""
+    from facemesh import load_camera
+
+    load_camera(_block_file(block, work, ".xml"))
 
 
 @pytest.mark.parametrize("doc", DOCS, ids=[str(d.relative_to(REPO)) for d in DOCS])
@@ -305,12 +309,9 @@ def test_doc_snippets_run(doc: Path, doc_inputs: Path, tmp_path: Path) -> None:
         elif block.lang == "python":
             _run_python(block, work)
         elif block.lang == "yaml":
-            _check_yaml(block)
+            _check_yaml(block, work)
         elif block.lang == "xml":
-            from facemesh import load_camera
-
-            (work / f"block_{block.line}.xml").write_text(block.text)
-            load_camera(work / f"block_{block.line}.xml")
+            _check_xml(block, work)
     for check in AFTER_RUN.get(doc.name, ()):
         check(work)
 

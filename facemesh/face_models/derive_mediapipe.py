@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from ..geometry import apply_similarity, similarity_transform
+from . import _DATA_FILE
 from .triangulation import clean_triangulation_from_edges
 
 #: Mean adult interpupillary distance, millimetres (Dodgson 2004).
@@ -267,7 +268,8 @@ def derive() -> dict[str, NDArray[np.generic]]:
     return derive_from_landmarks(*derivation_inputs())
 
 
-PACKAGED_MODEL = Path(__file__).with_name("mediapipe468.npz")
+#: The model file the package loads (:func:`facemesh.face_models.builtin_face_model`).
+PACKAGED_MODEL = Path(__file__).with_name(_DATA_FILE)
 
 
 def main(argv: list[str] | None = None) -> None:
