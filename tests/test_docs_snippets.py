@@ -317,17 +317,10 @@ def test_doc_snippets_run(doc: Path, doc_inputs: Path, tmp_path: Path) -> None:
 
 
 def _gaze_csv_columns_documented(work: Path) -> None:
-    """tracking.md's table of gaze.csv columns lists the columns `track --rig` wrote, in their order."""
-    header = (work / "out" / "gaze.csv").read_text().split("\n")[0].split(",")
-    lines = (REPO / "docs" / "tracking.md").read_text(encoding="utf-8").split("\n")
-    start = lines.index("  | column | meaning |")
-    documented: list[str] = []
-    for line in lines[start + 2 :]:
-        if not line.strip().startswith("|"):
-            break
-        for cell in re.findall(r"`([^`]+)`", line.split("|")[1].replace("with `--rig`:", "")):
-            documented += [c.strip() for c in cell.split(",")]
-    assert set(header) == set(documented), f"gaze.csv: {set(header) ^ set(documented)}"
+    """tracking.md's table of gaze.csv columns lists the columns `track --rig` wrote, no more, no fewer."""
+    header = set((work / "out" / "gaze.csv").read_text().split("\n")[0].split(","))
+    documented = _documented_names(REPO / "docs" / "tracking.md", "column")
+    assert header == documented, f"gaze.csv: {header ^ documented}"
 
 
 #: Checks of a document's outputs after its blocks ran (in its folder).
@@ -366,15 +359,21 @@ def test_cli_words_reads_synopses() -> None:
 
 
 def _documented_names(doc: Path, first_header: str) -> set[str]:
-    """The backticked names in the first column of the table whose header row starts with ``| first_header |``."""
-    lines = doc.read_text(encoding="utf-8").split("\n")
+    """The names in the first column of the table whose header row starts with ``| first_header |``.
+
+    A name is backticked; one backtick span may list several (`gaze_x, gaze_y`); backticked
+    options (`--rig`) say when a name is present and are not names. The table may be indented
+    (inside a list item).
+    """
+    lines = [line.strip() for line in doc.read_text(encoding="utf-8").split("\n")]
     start = [k for k, line in enumerate(lines) if line.startswith(f"| {first_header} |")]
     assert len(start) == 1, f"{doc.name}: expected one table headed '{first_header}', found {len(start)}"
     names: set[str] = set()
     for line in lines[start[0] + 2 :]:
         if not line.startswith("|"):
             break
-        names.update(re.findall(r"`([^`]+)`", line.split("|")[1]))
+        for span in re.findall(r"`([^`]+)`", line.split("|")[1]):
+            names.update(n.strip() for n in span.split(",") if not n.strip().startswith("-"))
     return names
 
 
