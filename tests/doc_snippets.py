@@ -124,7 +124,10 @@ def _strip_comment(line: str) -> str:
 
 
 def commands(block: Block) -> list[Command]:
-    """The block's shell commands: ``\\`` continuations joined, comments and blank lines dropped."""
+    """The block's shell commands: ``\\`` continuations joined, comments and blank lines dropped.
+
+    In a synopsis (``bash usage``) a line that starts indented also continues the previous one.
+    """
     out: list[Command] = []
     pending = ""
     start = 0
@@ -137,7 +140,11 @@ def commands(block: Block) -> list[Command]:
             continue
         text = (pending + line.strip()).strip()
         pending = ""
-        if text:
+        if not text:
+            continue
+        if block.role == "usage" and raw[:1].isspace() and out:
+            out[-1] = Command(out[-1].line, f"{out[-1].text} {text}")
+        else:
             out.append(Command(start, text))
     return out
 

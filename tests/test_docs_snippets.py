@@ -218,20 +218,6 @@ def _check_not_run(command: Command, block: Block, why: str) -> None:
         _check_options(text, where)
 
 
-def _usage_lines(block: Block) -> list[Command]:
-    """A synopsis's commands: lines that start indented continue the previous one."""
-    out: list[Command] = []
-    for k, raw in enumerate(block.text.split("\n")):
-        line = re.sub(r"\s+#.*$", "", raw.rstrip().rstrip("\\"))
-        if not line.strip():
-            continue
-        if out and (raw[:1].isspace() or out[-1].text.endswith("\\")):
-            out[-1] = Command(out[-1].line, out[-1].text + " " + line.strip())
-        else:
-            out.append(Command(block.line + 1 + k, line.strip()))
-    return out
-
-
 def _run_bash(block: Block, work: Path) -> None:
     for command in commands(block):
         where = f"{block.doc.relative_to(REPO)}:{command.line}"
@@ -302,7 +288,7 @@ def test_doc_snippets_run(doc: Path, doc_inputs: Path, tmp_path: Path) -> None:
     work = _workdir(doc, doc_inputs, tmp_path)
     for block in blocks(doc):
         if block.lang == "bash" and block.role == "usage":
-            for command in _usage_lines(block):
+            for command in commands(block):
                 _check_options(command.text, f"{block.doc.relative_to(REPO)}:{command.line}")
         elif block.lang == "bash":
             _run_bash(block, work)
@@ -425,6 +411,8 @@ def test_commands_join_continuations_and_drop_comments() -> None:
         Command(15, "ls  -l"),
     ]
     assert output_paths(commands(block)[0].text) == ["a #b.npz"]
+    synopsis = Block(REPO / "README.md", 1, "bash", "usage", "gazeaug a [--x X]\n        [--y]  # note\ngazeaug b\n")
+    assert commands(synopsis) == [Command(2, "gazeaug a [--x X] [--y]"), Command(4, "gazeaug b")]
 
 
 def test_a_failing_or_silent_command_fails_the_doc(tmp_path: Path) -> None:
