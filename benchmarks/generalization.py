@@ -1,7 +1,7 @@
 """Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
-[--test-per-person 15] [--no-vary] [--keep]``
+[--test-per-person 15] [--no-vary] [--redirect-eyes]``
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -65,6 +65,11 @@ def main() -> None:
     ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument(
+        "--redirect-eyes",
+        action="store_true",
+        help="augment with gaze redirection: 3D eyes turned to the wheelchair rig's targets (JobSettings.eyes)",
+    )
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
@@ -95,6 +100,8 @@ def main() -> None:
         workers=args.workers,
         seed=args.seed,
         seeds=args.seeds,
+        rig=rig,
+        eyes="redirect" if args.redirect_eyes else "keep",
     )
     res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)
     summary: dict[str, object] = {
@@ -102,6 +109,7 @@ def main() -> None:
         "train_images": len(TRAIN_PHOTOS) * args.per_face,
         "identities_per_photo": args.identities,
         "vary_identity": not args.no_vary,
+        "eyes": "redirect" if args.redirect_eyes else "keep",
         "simulate_s": round(t_sim, 1),
         "total_s": round(time.perf_counter() - t0, 1),
     }

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from facemesh.conventions import rotation_from_yaw_pitch
+from facemesh.conventions import rotation_from_yaw_pitch, vector_to_pitchyaw, yaw_pitch_from_rotation
 from facemesh.face_models import BUILTIN_MODELS, FaceKeypoints, builtin_face_model
 from facemesh.types import FaceMesh
 
@@ -36,6 +36,12 @@ from .camera import NormalizedViews, reference_points_head
 from .errors import GazeAugError
 from .normalize import NormalizationSettings, NormalizedSample, samples_from_views, views_at
 from .render.base import RenderMesh, Scene, View, render_mesh
+
+if TYPE_CHECKING:
+    from facemesh.build import FaceFit
+
+    from .sampling import Rig
+    from .simulate import SimSettings, SimSubject
 
 __all__ = [
     "FaceAsset",
@@ -45,6 +51,13 @@ __all__ = [
     "sampled_placements",
     "source_placement",
     "render_poses",
+    "redirect_settings",
+    "rig_looks",
+    "source_eye_pitch",
+    "redirect_subject",
+    "render_redirected",
+    "eye_softness_px",
+    "EYE_SOFTNESS_SOURCE_PX",
     "TEXTURE_REACH",
     "TextureCropWarning",
     "texture_shortfall",
@@ -173,6 +186,17 @@ def _render_views(
     ]
 
 
+def _sample_metas(placements: Sequence[HeadPlacement], meta: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+    """Each sample's extras: ``meta`` and, for a sampled placement, its ``yaw_pitch_deg``."""
+    metas = []
+    for place in placements:
+        m = dict(meta or {})
+        if place.yaw_pitch_rad is not None:
+            m["yaw_pitch_deg"] = np.degrees(place.yaw_pitch_rad).tolist()
+        metas.append(m)
+    return metas
+
+
 def render_poses(
     scene: Scene,
     asset: FaceAsset,
@@ -225,12 +249,7 @@ def render_poses(
     )
     out = scene.render(_render_views(asset, views, rot, trans))
     h, w = s.patch_size_wh[1], s.patch_size_wh[0]
-    metas = []
-    for place in placements:
-        m = dict(meta or {})
-        if place.yaw_pitch_rad is not None:
-            m["yaw_pitch_deg"] = np.degrees(place.yaw_pitch_rad).tolist()
-        metas.append(m)
+    metas = _sample_metas(placements, meta)
     return samples_from_views(
         views,
         np.asarray(out.images).reshape(len(rot), 2, h, w, 3),
@@ -239,6 +258,161 @@ def render_poses(
         f"render:{renderer_name}",
         coverage=np.asarray(out.coverage).reshape(len(rot), 2),
         metas=metas,
+    )
+
+
+# --------------------------------------------------------------------------- gaze redirection
+
+
+def rig_looks(
+    asset: FaceAsset, rig: Rig, n: int, rng: np.random.Generator, distance_mm: float | None = None
+) -> tuple[list[HeadPlacement], NDArray[np.float64]]:
+    """``n`` head placements and the points looked at, drawn jointly as the rig draws them (``gazeaug simulate``).
+
+    Each draw is the rig's head turn and target (:func:`gazeaug.simulate.rig_pose`);
+    the head is then placed like every augmented head, its eye midpoint
+    ``distance_mm`` in front of the camera on the optical axis (default: the
+    source photo's distance), and the target moves with it, so the gaze keeps
+    its direction in the head frame: the rig's eye-in-head gaze, not the source's.
+
+    Returns:
+        The placements (their ``yaw_pitch_rad`` that of the rotation, which may also roll) and
+        (n, 3) float64 targets, mm, application camera frame.
+    """
+    from .simulate import rig_pose
+
+    d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
+    if not (np.isfinite(d) and d > 0):
+        raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
+    trans = np.array([0.0, 0.0, d])
+    places, targets = [], []
+    for _ in range(int(n)):
+        r, t, target = rig_pose(rig, rng)
+        places.append(HeadPlacement(rotation=r, translation_mm=trans, yaw_pitch_rad=yaw_pitch_from_rotation(r)))
+        targets.append(target - t + trans)  # the head keeps its rotation and moves from t: the target with it
+    return places, np.stack(targets) if targets else np.zeros((0, 3))
+
+
+def source_eye_pitch(
+    asset: FaceAsset, gaze_target_mm: ArrayLike | None = None, gaze_vector: ArrayLike | None = None
+) -> float:
+    """The source's eye-in-head gaze pitch, radians (+ up, head frame): where its lids were photographed.
+
+    Args:
+        asset: the face at its source pose.
+        gaze_target_mm: (3,) float, mm, source camera frame (seen from the eyes' midpoint); or
+        gaze_vector: (3,) float, source camera frame.
+    """
+    r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    if gaze_target_mm is not None:
+        mid = asset.reference_points_mm[:2].mean(axis=0)  # the eyes' midpoint, head frame
+        g = np.asarray(gaze_target_mm, dtype=np.float64) - (r_h @ mid + t_h)
+    elif gaze_vector is not None:
+        g = np.asarray(gaze_vector, dtype=np.float64)
+    else:
+        return 0.0
+    if g.shape != (3,) or not np.isfinite(g).all() or not np.linalg.norm(g) > 0:
+        raise GazeAugError(f"gaze: expected a finite, non-zero (3,) vector, got {np.asarray(g).tolist()}")
+    return float(vector_to_pitchyaw(r_h.T @ g)[0])
+
+
+def redirect_settings() -> SimSettings:
+    """The simulator's settings for redirected eyes: the photo's face as photographed (not re-lit), eyes drawn."""
+    from .simulate import SimSettings
+
+    return SimSettings(relight=False)
+
+
+def redirect_subject(
+    fit: FaceFit,
+    asset: FaceAsset,
+    rng: np.random.Generator,
+    *,
+    gaze_target_mm: ArrayLike | None = None,
+    gaze_vector: ArrayLike | None = None,
+) -> SimSubject:
+    """The photo's face with 3D eyes in its eye openings, ready to look anywhere.
+
+    The eye openings' triangles are cut out and an eyeball put behind each, as
+    :class:`gazeaug.simulate.SimSubject` makes them: the eyes' sizes, lid drop,
+    kappa and sclera drawn (:func:`gazeaug.simulate.eyes_only`), the photo's own
+    iris colour, face shape and texture. The lids follow the new gaze's pitch
+    from the source's own (:func:`source_eye_pitch`).
+
+    Raises:
+        GazeAugError: the face has no MediaPipe eye contours and iris points (478 landmarks).
+    """
+    from .simulate import PhotoFace, SimSubject, draw_subject, eyes_only
+
+    settings = redirect_settings()
+    pitch = source_eye_pitch(asset, gaze_target_mm, gaze_vector)
+    photo = PhotoFace.from_fit(fit, asset.mesh, fit.source, eye_pitch_rad=pitch)
+    return SimSubject(photo, fit.source, settings, eyes_only(draw_subject(settings, rng)))
+
+
+#: The softness of a photographed eye, in source-image pixels (Gaussian sigma): the optics, the
+#: demosaicing and the resampling of normalization blur a photo's eye over about a pixel, where a
+#: ray-cast eyeball is sharp. A modelling choice, not a measurement.
+EYE_SOFTNESS_SOURCE_PX = 0.7
+
+
+def eye_softness_px(asset: FaceAsset, settings: NormalizationSettings) -> float:
+    """The blur of redirected eyeballs, patch pixels: :data:`EYE_SOFTNESS_SOURCE_PX` at the patch's scale.
+
+    A source pixel covers ``(f_n / d_n) / (f / D)`` patch pixels (``f``, ``D``: the source camera's
+    focal length and the face's distance; ``f_n``, ``d_n``: the normalized camera's), at least one.
+    """
+    f = float(np.mean(asset.mesh.camera.focal_px))
+    d = float(np.linalg.norm(asset.mesh.pose.translation_mm))
+    scale = (settings.focal_px / settings.distance_mm) / (f / d)
+    return EYE_SOFTNESS_SOURCE_PX * max(1.0, scale)
+
+
+def render_redirected(
+    subject: SimSubject,
+    asset: FaceAsset,
+    placements: Sequence[HeadPlacement],
+    targets_mm: ArrayLike,
+    *,
+    settings: NormalizationSettings | None = None,
+    meta: Mapping[str, Any] | None = None,
+) -> list[NormalizedSample]:
+    """Both eyes at each head placement, the eyeballs turned to look at each target, with labels.
+
+    The gaze is redirected: the label is the line from the eyes to ``targets_mm``
+    (the eyeballs' visual axes fixate it), not the source photo's gaze. Patches
+    come from the subject's one ray-cast scene per placement (face textured by the
+    mip-mapped sampler, eyeballs by :class:`gazeaug.render.shaders.EyeballShader`),
+    through the normalized cameras of the one kernel :func:`gazeaug.camera.normalized_views`.
+
+    Args:
+        subject: :func:`redirect_subject` of the face.
+        asset: the face.
+        placements: head poses in the application camera's frame.
+        targets_mm: (P, 3) float, mm, application camera frame: the point each placement looks at.
+        settings: normalization settings (must match test time's).
+        meta: extras recorded in every sample (with ``yaw_pitch_deg`` of sampled placements).
+    """
+    s = settings or NormalizationSettings()
+    if not placements:
+        return []
+    rot = np.stack([p.rotation for p in placements])
+    trans = np.stack([p.translation_mm for p in placements])
+    targets = np.asarray(targets_mm, dtype=np.float64)
+    if targets.shape != (len(placements), 3) or not np.isfinite(targets).all():
+        raise GazeAugError(f"targets: expected finite ({len(placements)}, 3) mm, got shape {targets.shape}")
+    views = views_at(asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets)
+    blur = eye_softness_px(asset, s)
+    images, coverage = [], []
+    for i in range(len(placements)):
+        im, cov = subject.render_patches(
+            rot[i], trans[i], targets[i], views.cameras[i][:2], antialias=s.antialias, eye_blur_px=blur
+        )
+        images.append(im)
+        coverage.append(cov)
+    metas = _sample_metas(placements, meta)
+    return samples_from_views(
+        views, np.stack(images), s, rot, "render:redirect", coverage=np.stack(coverage), metas=metas
     )
 
 

@@ -177,6 +177,28 @@ def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_eyes_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--redirect-eyes",
+        action="store_true",
+        help="re-make the eyes as 3D eyeballs turned to the --rig's targets, head poses and targets drawn as the "
+        "rig draws them, so that the set has the application's eye-in-head gaze (needs --rig and MediaPipe's "
+        "478 landmarks; docs/gazeaug.md) (default: each sample keeps its source's gaze in the head, the paper's "
+        "method)",
+    )
+
+
+def _eyes(args: argparse.Namespace) -> str:
+    """``JobSettings.eyes`` from ``--redirect-eyes`` (which needs ``--rig``)."""
+    from .errors import GazeAugError
+
+    if not args.redirect_eyes:
+        return "keep"
+    if args.rig is None:
+        raise GazeAugError("--redirect-eyes turns the eyes to a rig's targets: give --rig (a built-in name or a file)")
+    return "redirect"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gazeaug`` command."""
     from . import __version__
@@ -287,6 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
             )
             a.add_argument("--renderer", choices=renderers, default="raycast", help=RENDERER_HELP)
             _add_distribution_options(a)
+            _add_eyes_option(a)
 
     t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
     t.add_argument("train", type=Path, help="training set (.h5 from augment or normalize-dataset)")
@@ -520,6 +543,7 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument(
         "--per-sample", type=_positive_int, default=4, help="K augmented samples per training sample (default 4)"
     )
+    _add_eyes_option(xp)
     xp.add_argument(
         "--epochs",
         type=_positive_int,
@@ -802,6 +826,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
             renderer=args.renderer,
             normalization=_settings(args),
             rig=None if args.rig is None else load_rig(args.rig).as_dict(),
+            eyes=_eyes(args),
         )
     else:
         settings = JobSettings(kind="normalize-dataset", seed=args.seed, normalization=_settings(args))
@@ -1107,6 +1132,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         run_experiment,
         table,
     )
+    from .sampling import load_rig
     from .train import TrainSettings
 
     if (args.train is None) != (args.test is None):
@@ -1116,6 +1142,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     if args.per_face is not None and (args.train is not None or args.large):
         raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
     distribution = _distribution(args)  # a bad rig or distribution is refused before minutes of work
+    eyes = _eyes(args)
     defaults = TrainSettings()
     if args.train is None:
         from facemesh.io import load_image_rgb
@@ -1146,6 +1173,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         workers=args.workers,
         seed=args.seed,
         seeds=args.seeds,
+        rig=None if args.rig is None else load_rig(args.rig),
+        eyes=eyes,
     )
     results = run_experiment(
         args.train,

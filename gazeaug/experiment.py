@@ -54,7 +54,7 @@ import numpy as np
 from .datasets import open_dataset
 from .errors import GazeAugError
 from .jobs import JobSettings, run_dataset
-from .sampling import HeadPoseDistribution
+from .sampling import HeadPoseDistribution, Rig
 from .train import TrainSettings
 
 __all__ = [
@@ -291,6 +291,10 @@ class ExperimentSettings:
         seeds: how many runs (default 3); every metric is reported as mean and standard
             deviation over them.
         n_boot: bootstrap replicates of the reduction's interval (default 2000).
+        rig: the application's rig (default None); with ``eyes="redirect"`` the augmented set's head
+            poses and gaze targets are drawn from it.
+        eyes: ``"keep"`` (default, the paper's method) or ``"redirect"``: see
+            :class:`gazeaug.jobs.JobSettings`.
     """
 
     per_sample: int = 4
@@ -300,8 +304,12 @@ class ExperimentSettings:
     seed: int = 0
     seeds: int = 3
     n_boot: int = 2000
+    rig: Rig | None = None
+    eyes: str = "keep"
 
     def __post_init__(self) -> None:
+        if self.eyes == "redirect" and self.rig is None:
+            raise GazeAugError("redirected eyes need the application's rig (its targets give the gazes)")
         if not (isinstance(self.per_sample, int) and self.per_sample >= 1):
             raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
         if not (isinstance(self.seeds, int) and 1 <= self.seeds <= 100):
@@ -474,7 +482,14 @@ def run_experiment(
         d = out / f"seed{seed}"
         d.mkdir(exist_ok=True)
         aug_h5 = d / "train_augmented.h5"
-        job = JobSettings(kind="augment", per_sample=s.per_sample, distribution=s.distribution, seed=seed)
+        job = JobSettings(
+            kind="augment",
+            per_sample=s.per_sample,
+            distribution=s.distribution,
+            seed=seed,
+            rig=None if s.rig is None else s.rig.as_dict(),
+            eyes=s.eyes,
+        )
         augmented = dataset(train_reader, aug_h5, job, "augmented")
         if i == 0:  # the report's pictures of the augmented set: the first seed's
             _examples(aug_h5, out / "examples_augmented.png")
@@ -573,6 +588,8 @@ def run_experiment(
     results["settings"] = {
         "per_sample": s.per_sample,
         "distribution": s.distribution.as_dict(),
+        "eyes": s.eyes,
+        "rig": None if s.rig is None else s.rig.name,
         "train": asdict(s.train),
         "seed": s.seed,
         "seeds": s.seeds,

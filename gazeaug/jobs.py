@@ -25,7 +25,7 @@ import uuid
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,7 +55,14 @@ class JobSettings:
         seed: base seed (default 0).
         renderer: ``"raycast"`` (default) or ``"filament"``.
         normalization: the normalized camera and patch.
-        rig: the rig description the distribution came from, if any (recorded only).
+        rig: the rig description the distribution came from, if any (recorded; with ``eyes="redirect"``
+            its head poses and targets are drawn).
+        eyes: ``"keep"`` (default, the paper's method): each augmented sample keeps the source's
+            gaze in the head and its photographed eyes; ``"redirect"``: the eyes are re-made as 3D
+            eyeballs (:func:`gazeaug.augment.redirect_subject`) and turned to the rig's targets, head
+            poses and targets drawn jointly from ``rig`` (:func:`gazeaug.augment.rig_looks`), so the
+            augmented set carries the application's eye-in-head gaze. Needs ``rig`` and MediaPipe's
+            478 landmarks.
     """
 
     kind: str = "augment"
@@ -65,10 +72,25 @@ class JobSettings:
     renderer: str = "raycast"
     normalization: NormalizationSettings = field(default_factory=NormalizationSettings)
     rig: dict[str, Any] | None = None
+    eyes: str = "keep"
+
+    #: The ``eyes`` choices.
+    EYES: ClassVar[tuple[str, ...]] = ("keep", "redirect")
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise GazeAugError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if self.eyes not in self.EYES:
+            raise GazeAugError(f"eyes: expected one of {self.EYES}, got {self.eyes!r}")
+        if self.eyes == "redirect":
+            if self.kind != "augment":
+                raise GazeAugError("eyes='redirect' is an augmentation setting")
+            if self.rig is None:
+                raise GazeAugError(
+                    "redirected eyes need a rig: its targets give the gazes (and its head poses the poses)"
+                )
+            if self.renderer != "raycast":
+                raise GazeAugError(f"redirected eyes are ray cast: expected renderer 'raycast', got {self.renderer!r}")
         if self.kind == "augment" and not (isinstance(self.per_sample, int) and self.per_sample >= 1):
             raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
         from .render import RENDERERS
@@ -84,6 +106,8 @@ class JobSettings:
             d.update(per_sample=self.per_sample, distribution=self.distribution.as_dict(), renderer=self.renderer)
             if self.rig is not None:
                 d["rig"] = self.rig
+            if self.eyes != "keep":  # recorded only when set, so earlier outputs' settings still match
+                d["eyes"] = self.eyes
         return d
 
 
@@ -128,6 +152,11 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
 
         options = {"threads": threads} if settings.renderer == "raycast" else {}
         _STATE["renderer"] = create_renderer(settings.renderer, settings=settings.normalization, **options)
+        if settings.eyes == "redirect":
+            from .sampling import rig_from_dict
+
+            assert settings.rig is not None
+            _STATE["rig"] = rig_from_dict(settings.rig)
 
 
 def _read_image(sample: GazeSample) -> NDArray[np.uint8] | Exception:
@@ -148,7 +177,14 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
     from facemesh.pose import PoseError
     from facemesh.types import InputError, NoFaceError
 
-    from .augment import face_asset, render_poses, sampled_placements
+    from .augment import (
+        face_asset,
+        redirect_subject,
+        render_poses,
+        render_redirected,
+        rig_looks,
+        sampled_placements,
+    )
 
     s: JobSettings = _STATE["settings"]
     idx = sample.source_index
@@ -204,18 +240,23 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             assert source.gaze is not None
             before = np.stack([source.head_pose[0, 2], source.gaze[0, 2]])  # face frame
             asset = face_asset(provider.mesh(fit, sample))
-            scene = _STATE["renderer"].scene(asset.render_mesh)
-            yp = s.distribution.sample(s.per_sample, np.random.default_rng([s.seed, idx]))
-            places = sampled_placements(asset, yp)
-            samples = render_poses(
-                scene,
-                asset,
-                places,
-                gaze_target_mm=target,
-                gaze_vector=vector,
-                settings=s.normalization,
-                renderer_name=s.renderer,
-            )
+            rng = np.random.default_rng([s.seed, idx])
+            if s.eyes == "redirect":
+                subject = redirect_subject(fit, asset, rng, gaze_target_mm=target, gaze_vector=vector)
+                places, looked_at = rig_looks(asset, _STATE["rig"], s.per_sample, rng)
+                samples = render_redirected(subject, asset, places, looked_at, settings=s.normalization)
+            else:
+                scene = _STATE["renderer"].scene(asset.render_mesh)
+                places = sampled_placements(asset, s.distribution.sample(s.per_sample, rng))
+                samples = render_poses(
+                    scene,
+                    asset,
+                    places,
+                    gaze_target_mm=target,
+                    gaze_vector=vector,
+                    settings=s.normalization,
+                    renderer_name=s.renderer,
+                )
     except (PoseError, GazeAugError, InputError) as exc:
         return skip(f"failed: {exc}")
     return SampleOutcome(idx, rows_from_samples(samples, sample.subject, idx), None, before)

@@ -31,7 +31,7 @@ from facemesh.types import CameraIntrinsics
 from .errors import GazeAugError
 from .scene import Plane, Scene, Target, plane_from_dict, target_from_dict
 
-__all__ = ["HeadPoseDistribution", "Rig", "load_rig", "BUILTIN_RIGS"]
+__all__ = ["HeadPoseDistribution", "Rig", "load_rig", "rig_from_dict", "BUILTIN_RIGS"]
 
 
 @dataclass(frozen=True)
@@ -363,17 +363,40 @@ def load_rig(spec: str | Path) -> Rig:
             raise GazeAugError(f"{at(key)}: {key}: expected a list, got {type(items).__name__}")
         data[key] = tuple(parse(item, at((key, i))) for i, item in enumerate(items))
     try:
-        for k in ("camera_position_mm", "image_size_wh"):
-            if isinstance(data.get(k), list):
-                data[k] = tuple(data[k])
-        if isinstance(data.get("target_box_mm"), list):
-            data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
-        return Rig(**data)
+        return Rig(**_tupled(data))
     except GazeAugError as exc:
         named = [k for k in fields if f"{k}:" in str(exc) or f"{k} " in str(exc)]
         raise GazeAugError(f"{at(named[0]) if named else p}: {exc}") from exc
     except (TypeError, ValueError, OverflowError) as exc:  # a field of the wrong type or size
         raise GazeAugError(f"{p}: bad rig field value ({exc.__class__.__name__}: {exc})") from exc
+
+
+def _tupled(data: dict[str, Any]) -> dict[str, Any]:
+    """Rig fields with JSON/YAML lists made the tuples :class:`Rig` holds."""
+    data = dict(data)
+    for k in ("camera_position_mm", "image_size_wh"):
+        if isinstance(data.get(k), list):
+            data[k] = tuple(data[k])
+    if isinstance(data.get("target_box_mm"), list):
+        data["target_box_mm"] = tuple(tuple(c) for c in data["target_box_mm"])
+    return data
+
+
+def rig_from_dict(data: dict[str, Any]) -> Rig:
+    """The rig that :meth:`Rig.as_dict` recorded (as an output's settings keep it).
+
+    Raises:
+        GazeAugError: not a recorded rig.
+    """
+    if not isinstance(data, dict):
+        raise GazeAugError(f"rig: expected a mapping of rig fields, got {type(data).__name__}")
+    d = dict(data)
+    for key, parse in (("targets", target_from_dict), ("planes", plane_from_dict)):
+        d[key] = tuple(parse(item, f"rig {key}[{i}]") for i, item in enumerate(d.get(key) or []))
+    try:
+        return Rig(**_tupled(d))
+    except (TypeError, ValueError) as exc:
+        raise GazeAugError(f"rig: bad recorded fields ({exc})") from exc
 
 
 #: Rig fields a rig file may leave out: the name (the file's stem), and the scene (none).

@@ -43,6 +43,7 @@ from facemesh.render import (
     import_open3d,
     shade,
 )
+from facemesh.types import FaceMesh
 
 from .engine import Engine
 from .errors import GazeAugError
@@ -59,6 +60,8 @@ __all__ = [
     "SimFrame",
     "simulate",
     "eye_contours",
+    "rig_pose",
+    "eyes_only",
 ]
 
 
@@ -278,6 +281,18 @@ def draw_subject(settings: SimSettings, rng: np.random.Generator) -> SubjectDraw
     )
 
 
+def eyes_only(draw: SubjectDraw) -> SubjectDraw:
+    """The eyes of an identity draw, for a photo's own face (gaze redirection, :mod:`gazeaug.augment`).
+
+    Keeps the drawn eyeball, iris and pupil sizes, eye opening, lid drop, kappa,
+    sclera and iris pattern; drops the face shape, head size, skin gain and
+    glasses, and takes the photo's own iris colour.
+    """
+    from dataclasses import replace
+
+    return replace(draw, shape_coefficients=(), head_scale=1.0, skin_gain=(1.0, 1.0, 1.0), glasses=None, iris_rgb=None)
+
+
 def eye_contours() -> dict[str, list[int]]:
     """MediaPipe Face Mesh eye contour loops (landmark indices, in order around each eye).
 
@@ -378,6 +393,9 @@ class PhotoFace:
         num_face_vertices: N, the landmark vertices.
         ring_parent: (V - N,) int64: the face vertex each ring vertex follows.
         iris_rgb: {"left", "right"}: (3,) float64 RGB measured in the photo.
+        eye_pitch_rad: the photo's own eye-in-head pitch (radians, + up, head frame), the gaze its
+            lids were photographed at: the rendered lids follow the difference (0 for photos
+            without a gaze label, as the simulator's).
     """
 
     source: str
@@ -388,6 +406,7 @@ class PhotoFace:
     num_face_vertices: int
     ring_parent: NDArray[np.int64]
     iris_rgb: dict[str, NDArray[np.float64]]
+    eye_pitch_rad: float = 0.0
 
     @classmethod
     def from_image(cls, image: NDArray[np.uint8], detector: Any, source: str = "image") -> PhotoFace:
@@ -400,13 +419,25 @@ class PhotoFace:
         from facemesh.camera import camera_for_image
 
         from .pipeline import fit_face, mesh_for_fit
-        from .render.base import render_mesh
 
         h, w = image.shape[:2]
         fit = fit_face(image, camera_for_image(None, w, h, warn=False), detector, source=source)
-        if fit.landmarks.num_points < 478:
-            raise GazeAugError(f"{source}: the simulator needs MediaPipe's 478 landmarks (with the iris points)")
-        mesh = mesh_for_fit(fit)
+        return cls.from_fit(fit, mesh_for_fit(fit), source)
+
+    @classmethod
+    def from_fit(cls, fit: Any, mesh: FaceMesh, source: str, eye_pitch_rad: float = 0.0) -> PhotoFace:
+        """A fitted face (:class:`facemesh.build.FaceFit`) and its mesh at the fit's pose.
+
+        Raises:
+            GazeAugError: fewer than MediaPipe's 478 landmarks (the eye contours and iris points are needed).
+        """
+        from .render.base import render_mesh
+
+        if fit.landmarks.num_points < 478 or mesh.num_vertices < 468:
+            raise GazeAugError(
+                f"{source}: 3D eyes need MediaPipe's 478 landmarks (eye contours and iris points), "
+                f"got {fit.landmarks.num_points} from {mesh.face_model_name!r}"
+            )
         rm = render_mesh(mesh)
         r, t = mesh.pose.rotation, mesh.pose.translation_mm
         head = (rm.vertices_mm - t) @ r  # every vertex (face + rings) in the head frame
@@ -415,7 +446,7 @@ class PhotoFace:
         drop = np.zeros(len(tri), dtype=bool)
         for loop in eye_contours().values():
             drop |= np.isin(tri, np.asarray(loop)).all(axis=1)  # the triangles that close the eye opening
-        iris = {side: _iris_colour(image, fit.landmarks.points_px, side) for side in ("left", "right")}
+        iris = {side: _iris_colour(fit.image, fit.landmarks.points_px, side) for side in ("left", "right")}
         return cls(
             source,
             head,
@@ -425,6 +456,7 @@ class PhotoFace:
             n,
             rm.ring_parent,
             iris,
+            float(eye_pitch_rad),
         )
 
 
@@ -492,6 +524,20 @@ def _glasses_mesh(
         verts.append(np.array([[x0, y, z], [x1, y, z], [x1, y + g.rim_mm, z], [x0, y + g.rim_mm, z]]))
         tris.append(np.array([[base, base + 1, base + 2], [base, base + 2, base + 3]]))
     return np.concatenate(verts), np.concatenate(tris).astype(np.uint32)
+
+
+@dataclass(frozen=True)
+class _PosedScene:
+    """A subject posed in a camera's frame.
+
+    The caster (face = mesh 0, then eyeballs, glasses), the shaders by mesh id,
+    each eye's optical axis (head frame) and the light (None: unlit).
+    """
+
+    caster: RayCaster
+    shaders: dict[int, Shader]
+    axes: dict[str, NDArray[np.float64]]
+    light: Any
 
 
 class SimSubject:
@@ -573,6 +619,7 @@ class SimSubject:
         self._sphere_v = np.asarray(sphere.vertices)
         self._sphere_t = np.asarray(sphere.triangles).astype(np.uint32)
         self.glasses = _glasses_mesh(self.eye_centre, d.glasses) if d.glasses is not None else None
+        self._mip_shader: Any = None  # built on the first render_patches
 
     @classmethod
     def from_image(
@@ -599,22 +646,20 @@ class SimSubject:
         frame = look_at_rotation(-visual, down=[0.0, 1.0, 0.0]).T  # columns: its axes in the head frame
         return frame @ (turn @ np.array([0.0, 0.0, -1.0]))
 
-    def render(
+    def _posed_scene(
         self,
         head_rotation: NDArray[np.float64],
         head_translation_mm: NDArray[np.float64],
         target_mm: NDArray[np.float64],
-        camera_matrix: NDArray[np.float64],
-        size_wh: tuple[int, int],
-        rng: np.random.Generator,
+        rng: np.random.Generator | None,
         blink: float = 0.0,
-    ) -> SimFrame:
-        """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame).
+        face_shader: Shader | None = None,
+    ) -> _PosedScene:
+        """The subject at a pose (head -> camera) looking at ``target_mm`` (camera frame), as one ray-cast scene.
 
-        ``blink``: 0 (open, default) to 1 (the upper lids lowered onto the lower ones).
+        ``rng`` draws the light (None: unlit, as without ``settings.relight``); ``face_shader``
+        replaces the face's bilinear texture shader (same texture and triangles).
         """
-        import cv2
-
         from facemesh.geometry import vertex_normals
 
         from .render.shaders import EyeballShader, FlatShader, Light, LitShader
@@ -623,16 +668,17 @@ class SimSubject:
         r, t = np.asarray(head_rotation), np.asarray(head_translation_mm)
         target_head = r.T @ (np.asarray(target_mm) - t)
         axes = {side: self.optical_axis(side, target_head) for side in ("left", "right")}
-        # eyelids follow the vertical gaze (mean of both eyes' pitch in the head frame; y down)
+        # eyelids follow the vertical gaze (mean of both eyes' pitch in the head frame; y down), from
+        # where the photo's lids were (its own eye pitch)
         pitch = float(np.mean(vector_to_pitchyaw(np.stack([axes["left"], axes["right"]]))[:, 0]))
         v = self.head.copy()
-        v[:, 1] -= math.sin(pitch) * (
+        v[:, 1] -= (math.sin(pitch) - math.sin(self.photo.eye_pitch_rad)) * (
             s.lid_follow_mm * self.lid_weight[:, 0] + s.lower_lid_follow_mm * self.lid_weight[:, 1]
         )
         if blink > 0:
             v[:, 1] += min(float(blink), 1.0) * self.blink_travel
         light = None
-        if s.relight:
+        if s.relight and rng is not None:
             # camera frame (y down, z forward): a light in front of the face, mostly from above
             ldir = np.array([rng.normal(0.0, 0.6), rng.normal(-0.4, 0.4), -1.0])
             light = Light(
@@ -643,12 +689,12 @@ class SimSubject:
         # one scene: the face (mesh 0), both eyeballs, the glasses, each with its shader
         posed = v @ r.T + t
         caster = RayCaster([(posed, self.triangles)])
-        shaders: dict[int, Shader] = {0: self.face_shader}
+        shaders: dict[int, Shader] = {0: face_shader or self.face_shader}
         if light is not None:
             normals = vertex_normals(posed, self.triangles)
             if float(np.mean(np.einsum("ij,ij->i", normals, -posed))) < 0:  # point them toward the camera
                 normals = -normals
-            shaders[0] = LitShader(self.face_shader, normals, self.triangles, light)
+            shaders[0] = LitShader(shaders[0], normals, self.triangles, light)
         up = r @ np.array([0.0, -1.0, 0.0])
         for side in ("left", "right"):
             c = r @ self.eye_centre[side] + t
@@ -677,6 +723,78 @@ class SimSubject:
                 gn = np.tile(-r[:, 2], (len(gv), 1))  # the frame faces forward (head -z)
                 frame_shader = LitShader(frame_shader, gn, gt, light)
             shaders[gid] = frame_shader
+        return _PosedScene(caster, shaders, axes, light)
+
+    def render_patches(
+        self,
+        head_rotation: NDArray[np.float64],
+        head_translation_mm: NDArray[np.float64],
+        target_mm: NDArray[np.float64],
+        cameras: Sequence[Any],
+        *,
+        antialias: bool = True,
+        eye_blur_px: float = 0.0,
+    ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+        """Normalized patches of the subject at a pose looking at ``target_mm``, unlit, without photometric noise.
+
+        Args:
+            head_rotation: (3, 3) head frame -> camera frame.
+            head_translation_mm: (3,) mm, camera frame.
+            target_mm: (3,) mm, camera frame: the point both eyes fixate.
+            cameras: normalized cameras (:class:`gazeaug.camera.NormalizedCamera`) in that camera's
+                frame, all of one patch size.
+            antialias: the face's texture read by the mip-mapped sampler normalization reads photos
+                with (default), as the ``raycast`` renderer does; False reads it bilinearly.
+            eye_blur_px: Gaussian sigma, patch pixels, of a blur over the eyeballs' pixels (mixing in their
+                neighbours, the lids' edges): the softness of the texture around them, which went
+                through a camera (default 0: as rendered).
+
+        Returns:
+            (C, H, W, 3) uint8 RGB patches (misses inpainted) and (C,) float64 coverage: the share of
+            each patch's pixels that hit the head (face, rings, eyes).
+        """
+        from .render.base import View, fill_misses, view_rays_packed
+        from .render.shaders import MipTextureShader
+        from .texture import build_pyramid
+
+        if self._mip_shader is None or self._mip_shader.antialias != antialias:
+            th, tw = self.texture.shape[:2]
+            table = TexelTable(self.photo.uv, self.triangles, (tw, th))
+            self._mip_shader = MipTextureShader(build_pyramid(self.texture), table, antialias=antialias)
+        scene = self._posed_scene(head_rotation, head_translation_mm, target_mm, None, face_shader=self._mip_shader)
+        rays = view_rays_packed([View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras])
+        fragments = scene.caster.trace(rays)
+        hit = fragments.hit
+        out = fill_misses(shade(fragments, rays, scene.shaders), hit)
+        if eye_blur_px > 0:
+            import cv2
+
+            eyes = hit & ~fragments.of_mesh(0)
+            for i in np.flatnonzero(eyes.reshape(len(eyes), -1).any(axis=1)):
+                soft = cv2.GaussianBlur(out[i], (0, 0), float(eye_blur_px))
+                out[i][eyes[i]] = soft[eyes[i]]
+        return out, hit.reshape(len(hit), -1).mean(axis=1).astype(np.float64)
+
+    def render(
+        self,
+        head_rotation: NDArray[np.float64],
+        head_translation_mm: NDArray[np.float64],
+        target_mm: NDArray[np.float64],
+        camera_matrix: NDArray[np.float64],
+        size_wh: tuple[int, int],
+        rng: np.random.Generator,
+        blink: float = 0.0,
+    ) -> SimFrame:
+        """One image: the head at the pose (head -> camera), looking at ``target_mm`` (camera frame).
+
+        ``blink``: 0 (open, default) to 1 (the upper lids lowered onto the lower ones).
+        """
+        import cv2
+
+        s = self.settings
+        r, t = np.asarray(head_rotation), np.asarray(head_translation_mm)
+        scene = self._posed_scene(r, t, target_mm, rng, blink)
+        caster, shaders, axes, light = scene.caster, scene.shaders, scene.axes, scene.light
         w, h = size_wh
         rays = camera_rays(np.linalg.inv(camera_matrix), np.zeros(3), (w, h))
         fragments = caster.trace(rays)
@@ -729,10 +847,17 @@ def face_image(face: Any) -> tuple[NDArray[np.uint8], str, str]:
     return image, source, Path(str(source)).stem
 
 
-def _rig_pose(
+def rig_pose(
     rig: Rig, rng: np.random.Generator
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """A head pose and a target in the rig's camera frame: (R head -> camera, t mm, target mm)."""
+    """A head pose and a target drawn as the rig draws them, in its camera's frame.
+
+    The head turns by ``R(yaw, pitch)`` of the rig's normal distributions at a position spread by
+    ``head_position_std_mm``; the target lies uniformly in ``target_box_mm``.
+
+    Returns:
+        (R (3, 3) head -> camera, t (3,) mm, target (3,) mm), camera frame.
+    """
     yaw = rig.head_yaw_mean_deg + rig.head_yaw_std_deg * rng.standard_normal()
     pitch = rig.head_pitch_mean_deg + rig.head_pitch_std_deg * rng.standard_normal()
     pos = rng.normal(0.0, rig.head_position_std_mm, 3)
@@ -894,7 +1019,7 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
         subj = subjects[j % task.identities]
         subject_id = subj.name
         rng = np.random.default_rng([task.seed, i, j])
-        r, t, target = _rig_pose(rig, rng)
+        r, t, target = rig_pose(rig, rng)
         frame = subj.render(r, t, target, k, (w, h), rng)
         name = f"{subject_id}/{j:05d}.jpg"
         save_image_rgb(out / name, frame.image)

@@ -1,0 +1,139 @@
+"""Gaze redirection in augmentation (``JobSettings(eyes="redirect")``, ``gazeaug augment --redirect-eyes``).
+
+Expected values are derived by hand from the rig's geometry and the (pitch, yaw)
+convention of docs/conventions.md (pitch + up, yaw + toward the camera's left;
+head frame x left, y down, z into the head): never from the code's output.
+"""
+
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from facemesh.camera import camera_for_image
+from facemesh.io import load_image_rgb
+from gazeaug.augment import face_asset, redirect_subject, render_redirected, rig_looks, source_eye_pitch
+from gazeaug.cli import main
+from gazeaug.errors import GazeAugError
+from gazeaug.jobs import JobSettings
+from gazeaug.pipeline import fit_face, mesh_for_fit
+from gazeaug.sampling import BUILTIN_RIGS, Rig, rig_from_dict
+from gazeaug.simulate import simulate
+
+
+def _still_rig(target_rig_mm) -> Rig:
+    """A camera straight ahead of the eyes, 500 mm away; a head that does not move; one target point."""
+    t = tuple(float(v) for v in target_rig_mm)
+    return Rig(
+        name="still",
+        camera_position_mm=(0.0, 0.0, -500.0),
+        head_yaw_std_deg=0.0,
+        head_pitch_std_deg=0.0,
+        head_position_std_mm=0.0,
+        target_box_mm=(t, t),
+    )
+
+
+@pytest.fixture(scope="module")
+def astronaut(faces_dir, detector):
+    img = load_image_rgb(faces_dir / "astronaut.png")
+    h, w = img.shape[:2]
+    fit = fit_face(img, camera_for_image(None, w, h, warn=False), detector, source="astronaut")
+    return fit, face_asset(mesh_for_fit(fit))
+
+
+def test_rig_looks_keep_the_rig_target_in_the_head_frame(astronaut):
+    _, asset = astronaut
+    # the rig frame is the frontal head frame, and a camera straight ahead of it sees it unturned:
+    # rotation I, the head placed at (0, 0, D), the target (0, 200, -400) of the head frame at (0, 200, D - 400)
+    places, targets = rig_looks(asset, _still_rig((0.0, 200.0, -400.0)), 3, np.random.default_rng(0), 650.0)
+    for p, t in zip(places, targets):
+        np.testing.assert_allclose(p.rotation, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(p.translation_mm, [0.0, 0.0, 650.0], atol=1e-12)
+        np.testing.assert_allclose(t, [0.0, 200.0, 250.0], atol=1e-9)
+        np.testing.assert_allclose(p.yaw_pitch_rad, [0.0, 0.0], atol=1e-12)
+
+
+def test_source_eye_pitch_from_a_hand_made_gaze(astronaut):
+    _, asset = astronaut
+    r, t = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    mid = asset.reference_points_mm[:2].mean(axis=0)
+    for pitch_deg in (-25.0, 0.0, 15.0):
+        p = math.radians(pitch_deg)
+        g_head = np.array([0.0, -math.sin(p), -math.cos(p)])  # pitch + up = -y; looking out of the face = -z
+        target = r @ (mid + 300.0 * g_head) + t
+        assert math.degrees(source_eye_pitch(asset, gaze_target_mm=target)) == pytest.approx(pitch_deg, abs=1e-9)
+        assert math.degrees(source_eye_pitch(asset, gaze_vector=r @ g_head)) == pytest.approx(pitch_deg, abs=1e-9)
+
+
+def _dark_centroid_y(patch: np.ndarray) -> float:
+    """Row of the darkest 4 % of the patch's middle third (pupil and iris)."""
+    grey = patch.astype(np.float64).mean(axis=2)
+    h, w = grey.shape
+    mid = grey[:, w // 3 : 2 * w // 3]
+    ys, _ = np.nonzero(mid <= np.quantile(mid, 0.04))
+    return float(ys.mean())
+
+
+def test_redirected_labels_follow_the_target_not_the_source(astronaut):
+    fit, asset = astronaut
+    r, t = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
+    source_up_left = r @ np.array([200.0, -150.0, -500.0]) + t  # the source looked up and aside: must not matter
+    labels, rows = {}, {}
+    for name, y in (("down", 200.0), ("up", -200.0)):
+        subject = redirect_subject(fit, asset, np.random.default_rng(1), gaze_target_mm=source_up_left)
+        places, targets = rig_looks(asset, _still_rig((0.0, y, -400.0)), 1, np.random.default_rng(0))
+        (sample,) = render_redirected(subject, asset, places, targets)
+        assert sample.left.coverage > 0.99 and sample.right.coverage > 0.99
+        labels[name] = np.degrees([sample.left.gaze, sample.right.gaze])  # (pitch, yaw) per eye
+        rows[name] = [_dark_centroid_y(sample.left.image), _dark_centroid_y(sample.right.image)]
+    # each eye (about 32 mm from the midline) looks 400 mm ahead and 200 mm down or up: pitch
+    # -+atan(200 / hypot(400, 32)) = -+26.5 deg in the head frame; the normalized cameras, aimed at eyes
+    # a few degrees off the optical axis, turn it by at most a few degrees
+    assert labels["down"][:, 0] == pytest.approx([-26.5, -26.5], abs=4.0)
+    assert labels["up"][:, 0] == pytest.approx([26.5, 26.5], abs=4.0)
+    assert np.abs(labels["down"][:, 1]).max() < 8.0 and np.abs(labels["up"][:, 1]).max() < 8.0
+    # the rendered eyes look that way: iris and pupil lower in the patch looking down (image y down)
+    assert min(rows["down"]) > max(rows["up"]) + 1.0
+
+
+def test_job_settings_redirect_needs_a_rig_and_is_recorded_only_when_set():
+    wheel = BUILTIN_RIGS["wheelchair"].as_dict()
+    assert "eyes" not in JobSettings(kind="augment", rig=wheel).as_dict()  # earlier outputs' settings still match
+    assert JobSettings(kind="augment", rig=wheel, eyes="redirect").as_dict()["eyes"] == "redirect"
+    with pytest.raises(GazeAugError, match="need a rig"):
+        JobSettings(kind="augment", eyes="redirect")
+    with pytest.raises(GazeAugError, match="augmentation setting"):
+        JobSettings(kind="normalize-dataset", rig=wheel, eyes="redirect")
+    with pytest.raises(GazeAugError, match="expected one of"):
+        JobSettings(kind="augment", rig=wheel, eyes="sideways")
+    assert rig_from_dict(wheel) == BUILTIN_RIGS["wheelchair"]
+
+
+def test_cli_augment_redirect_eyes(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    simulate([None], BUILTIN_RIGS["screen"], sim, per_face=2, progress=False)
+    out = tmp_path / "red.h5"
+    assert main(["augment", str(sim), "-o", str(out), "--redirect-eyes", "--per-sample", "3", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--rig" in err[0] and not out.exists()
+    assert (
+        main(["augment", str(sim), "-o", str(out), "--rig", "wheelchair", "--redirect-eyes", "--per-sample", "3"])
+        == 0
+    )
+    with h5py.File(out) as f:
+        assert len(f["gaze"]) == 6 and '"eyes": "redirect"' in f.attrs["settings"]
+        head_minus_gaze = np.degrees(f["head_pose"][:, 0] - f["gaze"][:, 0])
+    # the wheelchair user looks down at the table: the eyes about 15-20 deg below the head's direction
+    # (docs/simulation.md measures -18.1 on average), where kept eyes stay near the screen users' -3
+    assert head_minus_gaze.mean() > 8.0
+
+
+def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--redirect-eyes", "--per-face", "2", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--redirect-eyes" in err[0] and "--rig" in err[0]
+    assert not (tmp_path / "xp").exists()  # refused before any simulation
