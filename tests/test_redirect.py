@@ -121,8 +121,7 @@ def test_cli_augment_redirect_eyes(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--rig" in err[0] and not out.exists()
     assert (
-        main(["augment", str(sim), "-o", str(out), "--rig", "wheelchair", "--redirect-eyes", "--per-sample", "3"])
-        == 0
+        main(["augment", str(sim), "-o", str(out), "--rig", "wheelchair", "--redirect-eyes", "--per-sample", "3"]) == 0
     )
     with h5py.File(out) as f:
         assert len(f["gaze"]) == 6 and '"eyes": "redirect"' in f.attrs["settings"]
