@@ -376,6 +376,7 @@ def render_redirected(
     *,
     settings: NormalizationSettings | None = None,
     meta: Mapping[str, Any] | None = None,
+    threads: int = 0,
 ) -> list[NormalizedSample]:
     """Both eyes at each head placement, the eyeballs turned to look at each target, with labels.
 
@@ -392,6 +393,7 @@ def render_redirected(
         targets_mm: (P, 3) float, mm, application camera frame: the point each placement looks at.
         settings: normalization settings (must match test time's).
         meta: extras recorded in every sample (with ``yaw_pitch_deg`` of sampled placements).
+        threads: Embree threads per ray cast (0: all cores; 1 when several worker processes share them).
     """
     s = settings or NormalizationSettings()
     if not placements:
@@ -406,7 +408,7 @@ def render_redirected(
     images, coverage = [], []
     for i in range(len(placements)):
         im, cov = subject.render_patches(
-            rot[i], trans[i], targets[i], views.cameras[i][:2], antialias=s.antialias, eye_blur_px=blur
+            rot[i], trans[i], targets[i], views.cameras[i][:2], antialias=s.antialias, eye_blur_px=blur, threads=threads
         )
         images.append(im)
         coverage.append(cov)

@@ -53,7 +53,7 @@ import numpy as np
 
 from .datasets import open_dataset
 from .errors import GazeAugError
-from .jobs import JobSettings, run_dataset
+from .jobs import JobSettings, check_redirectable, run_dataset
 from .sampling import HeadPoseDistribution, Rig
 from .train import TrainSettings
 
@@ -308,6 +308,8 @@ class ExperimentSettings:
     eyes: str = "keep"
 
     def __post_init__(self) -> None:
+        if self.eyes not in JobSettings.EYES:
+            raise GazeAugError(f"eyes: expected one of {JobSettings.EYES}, got {self.eyes!r}")
         if self.eyes == "redirect" and self.rig is None:
             raise GazeAugError("redirected eyes need the application's rig (its targets give the gazes)")
         if not (isinstance(self.per_sample, int) and self.per_sample >= 1):
@@ -461,6 +463,8 @@ def run_experiment(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     train_reader = open_dataset(train_dataset, train_format)
+    if s.eyes == "redirect":
+        check_redirectable(train_reader)  # before minutes of normalizing the original set
     tests = {"test": (test_dataset, open_dataset(test_dataset, test_format))}
     if test_same_rig is not None:
         tests["test_same_rig"] = (test_same_rig, open_dataset(test_same_rig, test_same_rig_format))

@@ -39,7 +39,7 @@ from .io_h5 import H5Writer, Rows, rows_from_samples
 from .normalize import NormalizationSettings, normalize_image, views_at
 from .sampling import HeadPoseDistribution
 
-__all__ = ["JobSettings", "run_dataset", "process_sample", "SampleOutcome", "shard_dir"]
+__all__ = ["JobSettings", "run_dataset", "check_redirectable", "process_sample", "SampleOutcome", "shard_dir"]
 
 KINDS = ("augment", "normalize-dataset")
 
@@ -157,6 +157,7 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
 
             assert settings.rig is not None
             _STATE["rig"] = rig_from_dict(settings.rig)
+            _STATE["threads"] = threads
 
 
 def _read_image(sample: GazeSample) -> NDArray[np.uint8] | Exception:
@@ -244,7 +245,9 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             if s.eyes == "redirect":
                 subject = redirect_subject(fit, asset, rng, gaze_target_mm=target, gaze_vector=vector)
                 places, looked_at = rig_looks(asset, _STATE["rig"], s.per_sample, rng)
-                samples = render_redirected(subject, asset, places, looked_at, settings=s.normalization)
+                samples = render_redirected(
+                    subject, asset, places, looked_at, settings=s.normalization, threads=_STATE.get("threads", 0)
+                )
             else:
                 scene = _STATE["renderer"].scene(asset.render_mesh)
                 places = sampled_placements(asset, s.distribution.sample(s.per_sample, rng))
@@ -412,6 +415,26 @@ def _shard_task(
     return _ShardTask(first, stop, chunk, str(path), {**attrs, "shard": {"first": first, "stop": stop}}, patch_size_wh)
 
 
+def check_redirectable(reader: DatasetReader) -> None:
+    """Refuse, before any work, a dataset whose faces redirected eyes cannot use.
+
+    Redirection needs the landmark model's faces (MediaPipe's 478 points: eye contours
+    and iris); a dataset that gives its own face (UT Multiview's head models) has none.
+
+    Raises:
+        GazeAugError: the dataset's first sample brings its own face.
+    """
+    from .datasets.base import DetectedFace
+
+    first = next(iter(reader), None)
+    if first is not None and not isinstance(first.face_provider, DetectedFace):
+        raise GazeAugError(
+            f"{getattr(reader, 'root', reader.name)}: redirected eyes need faces found by MediaPipe (478 landmarks "
+            f"with the eye contours and iris); the {reader.name} dataset gives its own face models: augment it "
+            "keeping its eyes"
+        )
+
+
 def run_dataset(
     reader: DatasetReader,
     output: str | Path,
@@ -490,6 +513,8 @@ def _run_dataset(
     total = len(reader) if limit is None else min(len(reader), limit)
     if total == 0:
         raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
+    if settings.eyes == "redirect":
+        check_redirectable(reader)
     attrs = {
         "gazeaug_version": __version__,
         "kind": settings.kind,

@@ -654,11 +654,13 @@ class SimSubject:
         rng: np.random.Generator | None,
         blink: float = 0.0,
         face_shader: Shader | None = None,
+        threads: int = 0,
     ) -> _PosedScene:
         """The subject at a pose (head -> camera) looking at ``target_mm`` (camera frame), as one ray-cast scene.
 
         ``rng`` draws the light (None: unlit, as without ``settings.relight``); ``face_shader``
-        replaces the face's bilinear texture shader (same texture and triangles).
+        replaces the face's bilinear texture shader (same texture and triangles); ``threads``: Embree
+        threads of the caster (0: all cores).
         """
         from facemesh.geometry import vertex_normals
 
@@ -688,7 +690,7 @@ class SimSubject:
             )
         # one scene: the face (mesh 0), both eyeballs, the glasses, each with its shader
         posed = v @ r.T + t
-        caster = RayCaster([(posed, self.triangles)])
+        caster = RayCaster([(posed, self.triangles)], threads=threads)
         shaders: dict[int, Shader] = {0: face_shader or self.face_shader}
         if light is not None:
             normals = vertex_normals(posed, self.triangles)
@@ -734,6 +736,7 @@ class SimSubject:
         *,
         antialias: bool = True,
         eye_blur_px: float = 0.0,
+        threads: int = 0,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
         """Normalized patches of the subject at a pose looking at ``target_mm``, unlit, without photometric noise.
 
@@ -748,6 +751,7 @@ class SimSubject:
             eye_blur_px: Gaussian sigma, patch pixels, of a blur over the eyeballs' pixels (mixing in their
                 neighbours, the lids' edges): the softness of the texture around them, which went
                 through a camera (default 0: as rendered).
+            threads: Embree threads of the ray cast (0: all cores).
 
         Returns:
             (C, H, W, 3) uint8 RGB patches (misses inpainted) and (C,) float64 coverage: the share of
@@ -761,7 +765,9 @@ class SimSubject:
             th, tw = self.texture.shape[:2]
             table = TexelTable(self.photo.uv, self.triangles, (tw, th))
             self._mip_shader = MipTextureShader(build_pyramid(self.texture), table, antialias=antialias)
-        scene = self._posed_scene(head_rotation, head_translation_mm, target_mm, None, face_shader=self._mip_shader)
+        scene = self._posed_scene(
+            head_rotation, head_translation_mm, target_mm, None, face_shader=self._mip_shader, threads=threads
+        )
         rays = view_rays_packed([View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras])
         fragments = scene.caster.trace(rays)
         hit = fragments.hit

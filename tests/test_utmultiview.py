@@ -491,3 +491,15 @@ def test_fuzzed_files_give_typed_errors(ut, tmp_path, name):
 
     for data in mutations(valid, seed=len(name), n=20):
         expect_typed_error(read, raw / name, data)
+
+
+def test_redirected_eyes_refuse_the_dataset_faces_before_any_work(ut, tmp_path, capsys):
+    """UT Multiview brings its own head models (no eye contours or iris points): one line, exit 2, nothing written."""
+    from gazeaug.cli import main
+
+    root, _ = ut
+    out = tmp_path / "red.h5"
+    assert main(["augment", str(root), "-o", str(out), "--rig", "wheelchair", "--redirect-eyes", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "redirected eyes need faces found by MediaPipe" in err[0], err
+    assert not out.exists() and not out.with_name(out.name + ".part").exists()
