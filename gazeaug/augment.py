@@ -317,10 +317,16 @@ def source_eye_pitch(
 
 
 def redirect_settings() -> SimSettings:
-    """The simulator's settings for redirected eyes: the photo's face as photographed (not re-lit), eyes drawn."""
+    """The simulator's settings for redirected eyes: its defaults, so eyes and light are drawn as it draws them.
+
+    The face is re-lit per sample as the simulator re-lights its subjects (the photo's own
+    shading divided out as far as a low-pass model allows, then a light drawn in front of the
+    face, mostly from above), and the eyeballs take the same light: the shading, the shadow of
+    the upper lid and the corneal highlight of a lit eye.
+    """
     from .simulate import SimSettings
 
-    return SimSettings(relight=False)
+    return SimSettings()
 
 
 def redirect_subject(
@@ -377,6 +383,7 @@ def render_redirected(
     settings: NormalizationSettings | None = None,
     meta: Mapping[str, Any] | None = None,
     threads: int = 0,
+    rng: np.random.Generator | None = None,
 ) -> list[NormalizedSample]:
     """Both eyes at each head placement, the eyeballs turned to look at each target, with labels.
 
@@ -394,6 +401,7 @@ def render_redirected(
         settings: normalization settings (must match test time's).
         meta: extras recorded in every sample (with ``yaw_pitch_deg`` of sampled placements).
         threads: Embree threads per ray cast (0: all cores; 1 when several worker processes share them).
+        rng: draws each placement's light (the subject's settings re-light); None: unlit.
     """
     s = settings or NormalizationSettings()
     if not placements:
@@ -408,7 +416,14 @@ def render_redirected(
     images, coverage = [], []
     for i in range(len(placements)):
         im, cov = subject.render_patches(
-            rot[i], trans[i], targets[i], views.cameras[i][:2], antialias=s.antialias, eye_blur_px=blur, threads=threads
+            rot[i],
+            trans[i],
+            targets[i],
+            views.cameras[i][:2],
+            antialias=s.antialias,
+            eye_blur_px=blur,
+            threads=threads,
+            rng=rng,
         )
         images.append(im)
         coverage.append(cov)

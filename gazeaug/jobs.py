@@ -246,7 +246,13 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
                 subject = redirect_subject(fit, asset, rng, gaze_target_mm=target, gaze_vector=vector)
                 places, looked_at = rig_looks(asset, _STATE["rig"], s.per_sample, rng)
                 samples = render_redirected(
-                    subject, asset, places, looked_at, settings=s.normalization, threads=_STATE.get("threads", 0)
+                    subject,
+                    asset,
+                    places,
+                    looked_at,
+                    settings=s.normalization,
+                    threads=_STATE.get("threads", 0),
+                    rng=rng,
                 )
             else:
                 scene = _STATE["renderer"].scene(asset.render_mesh)

@@ -737,8 +737,12 @@ class SimSubject:
         antialias: bool = True,
         eye_blur_px: float = 0.0,
         threads: int = 0,
+        rng: np.random.Generator | None = None,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
-        """Normalized patches of the subject at a pose looking at ``target_mm``, unlit, without photometric noise.
+        """Normalized patches of the subject at a pose looking at ``target_mm``, without photometric noise.
+
+        Lit as :meth:`render` lights (a light drawn with ``rng``) when ``settings.relight`` and
+        ``rng`` is given; otherwise unlit (the texture as it is, the eyeballs shaded by the viewing angle).
 
         Args:
             head_rotation: (3, 3) head frame -> camera frame.
@@ -752,6 +756,7 @@ class SimSubject:
                 neighbours, the lids' edges): the softness of the texture around them, which went
                 through a camera (default 0: as rendered).
             threads: Embree threads of the ray cast (0: all cores).
+            rng: draws the light (see above); None: unlit.
 
         Returns:
             (C, H, W, 3) uint8 RGB patches (misses inpainted) and (C,) float64 coverage: the share of
@@ -766,7 +771,7 @@ class SimSubject:
             table = TexelTable(self.photo.uv, self.triangles, (tw, th))
             self._mip_shader = MipTextureShader(build_pyramid(self.texture), table, antialias=antialias)
         scene = self._posed_scene(
-            head_rotation, head_translation_mm, target_mm, None, face_shader=self._mip_shader, threads=threads
+            head_rotation, head_translation_mm, target_mm, rng, face_shader=self._mip_shader, threads=threads
         )
         rays = view_rays_packed([View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras])
         fragments = scene.caster.trace(rays)
