@@ -735,6 +735,23 @@ def steps_table(results: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _augmentation_line(settings: Mapping[str, Any]) -> str:
+    """What the augmented set was, in one sentence of the report."""
+    k = settings.get("per_sample", "?")
+    if settings.get("eyes") == "redirect":
+        return (
+            f"Augmentation: K = {k} per sample, redirected eyes: head poses and gaze targets drawn from the "
+            f"`{settings.get('rig')}` rig, the eyes turned to the targets."
+        )
+    d = settings.get("distribution") or {}
+    mean = np.round(np.asarray(d.get("mean_deg", [np.nan] * 2), dtype=float), 1).tolist()
+    cov = np.round(np.asarray(d.get("cov_deg2", [[np.nan] * 2] * 2), dtype=float), 1).tolist()
+    return (
+        f"Augmentation: K = {k} per sample, head poses (yaw, pitch) drawn from mean {mean} deg, "
+        f"covariance {cov} deg^2; each keeps its source's gaze in the head (the paper's method)."
+    )
+
+
 def _report(out: Path, results: Mapping[str, Any]) -> None:
     from facemesh.io import atomic_write
 
@@ -750,6 +767,7 @@ def _report(out: Path, results: Mapping[str, Any]) -> None:
         ),
         f"Seeds {', '.join(map(str, seeds))}: every figure is the mean ± standard deviation over "
         f"{len(seeds)} runs (augmentation and training seeded alike).",
+        _augmentation_line(results.get("settings", {})),
         "",
         table(results),
         reading_verdict(results),

@@ -136,3 +136,14 @@ def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--redirect-eyes" in err[0] and "--rig" in err[0]
     assert not (tmp_path / "xp").exists()  # refused before any simulation
+
+
+def test_cli_experiment_redirect_eyes_reports_it(tmp_path):
+    import json
+
+    xp = tmp_path / "xp"
+    args = ["experiment", "-o", str(xp), "--rig", "wheelchair", "--redirect-eyes", "--per-face", "2"]
+    assert main([*args, "--epochs", "1", "--seeds", "1", "--quiet"]) == 0
+    settings = json.loads((xp / "results.json").read_text())["settings"]
+    assert settings["eyes"] == "redirect" and settings["rig"] == "wheelchair"
+    assert "redirected eyes: head poses and gaze targets drawn from the `wheelchair` rig" in (xp / "report.md").read_text()
