@@ -146,4 +146,5 @@ def test_cli_experiment_redirect_eyes_reports_it(tmp_path):
     assert main([*args, "--epochs", "1", "--seeds", "1", "--quiet"]) == 0
     settings = json.loads((xp / "results.json").read_text())["settings"]
     assert settings["eyes"] == "redirect" and settings["rig"] == "wheelchair"
-    assert "redirected eyes: head poses and gaze targets drawn from the `wheelchair` rig" in (xp / "report.md").read_text()
+    report = (xp / "report.md").read_text()
+    assert "redirected eyes: head poses and gaze targets drawn from the `wheelchair` rig" in report
