@@ -146,6 +146,14 @@ def sampled_placement(
     return sampled_placements(asset, [[yaw_rad, pitch_rad]], distance_mm)[0]
 
 
+def _head_distance(asset: FaceAsset, distance_mm: float | None) -> float:
+    """Eye midpoint to the application camera, mm: ``distance_mm``, or the source photo's distance."""
+    d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
+    if not (np.isfinite(d) and d > 0):
+        raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
+    return d
+
+
 def sampled_placements(
     asset: FaceAsset, yaw_pitch_rad: ArrayLike, distance_mm: float | None = None
 ) -> list[HeadPlacement]:
@@ -157,9 +165,7 @@ def sampled_placements(
         distance_mm: eye midpoint to camera, mm (default: the source photo's distance).
     """
     yp = np.asarray(yaw_pitch_rad, dtype=np.float64).reshape(-1, 2)
-    d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
-    if not (np.isfinite(d) and d > 0):
-        raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
+    d = _head_distance(asset, distance_mm)
     if not np.isfinite(yp).all():
         raise GazeAugError(f"head pose: expected finite yaw and pitch, got {yp.tolist()}")
     rot = rotation_from_yaw_pitch(yp[:, 0], yp[:, 1])
@@ -281,10 +287,7 @@ def rig_looks(
     """
     from .simulate import rig_pose
 
-    d = float(np.linalg.norm(asset.mesh.pose.translation_mm)) if distance_mm is None else float(distance_mm)
-    if not (np.isfinite(d) and d > 0):
-        raise GazeAugError(f"head distance: expected > 0 mm, got {distance_mm}")
-    trans = np.array([0.0, 0.0, d])
+    trans = np.array([0.0, 0.0, _head_distance(asset, distance_mm)])
     places, targets = [], []
     for _ in range(int(n)):
         r, t, target = rig_pose(rig, rng)
@@ -352,7 +355,7 @@ def redirect_subject(
 
     settings = redirect_settings()
     pitch = source_eye_pitch(asset, gaze_target_mm, gaze_vector)
-    photo = PhotoFace.from_fit(fit, asset.mesh, fit.source, eye_pitch_rad=pitch)
+    photo = PhotoFace.from_fit(fit, asset.mesh, fit.source, eye_pitch_rad=pitch, rendered=asset.render_mesh)
     return SimSubject(photo, fit.source, settings, eyes_only(draw_subject(settings, rng)))
 
 

@@ -425,8 +425,13 @@ class PhotoFace:
         return cls.from_fit(fit, mesh_for_fit(fit), source)
 
     @classmethod
-    def from_fit(cls, fit: Any, mesh: FaceMesh, source: str, eye_pitch_rad: float = 0.0) -> PhotoFace:
+    def from_fit(
+        cls, fit: Any, mesh: FaceMesh, source: str, eye_pitch_rad: float = 0.0, *, rendered: Any = None
+    ) -> PhotoFace:
         """A fitted face (:class:`facemesh.build.FaceFit`) and its mesh at the fit's pose.
+
+        ``rendered``: ``mesh`` with its background rings (:func:`gazeaug.render.base.render_mesh`)
+        when the caller has it already (an augmentation's :class:`~gazeaug.augment.FaceAsset`); built here otherwise.
 
         Raises:
             GazeAugError: fewer than MediaPipe's 478 landmarks (the eye contours and iris points are needed).
@@ -438,7 +443,7 @@ class PhotoFace:
                 f"{source}: 3D eyes need MediaPipe's 478 landmarks (eye contours and iris points), "
                 f"got {fit.landmarks.num_points} from {mesh.face_model_name!r}"
             )
-        rm = render_mesh(mesh)
+        rm = render_mesh(mesh) if rendered is None else rendered
         r, t = mesh.pose.rotation, mesh.pose.translation_mm
         head = (rm.vertices_mm - t) @ r  # every vertex (face + rings) in the head frame
         tri = np.asarray(rm.triangles)
