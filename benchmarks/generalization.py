@@ -1,7 +1,7 @@
 """Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
-[--test-per-person 15] [--no-vary] [--redirect-eyes]``
+[--test-per-person 15] [--no-vary] [--redirect-eyes] [--reuse-simulated]``
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -14,8 +14,14 @@
    steps, ``--seeds`` seeds) and prints one JSON line with the figures issue 13 sets
    targets for: mean error, ratio to the constant guess, Pearson r of pitch and yaw, the
    error without the global offset, the reduction and its spread over seeds.
+4. Draws what the first seed's augmented model still gets wrong on the wheelchair test:
+   ``OUT/report/worst_augmented.png``, its 9 worst samples (both eyes, the true and the
+   predicted (pitch, yaw) in degrees, the error) and 3 of median error.
 
 Everything random derives from ``--seed``. The report lands in ``OUT/report/``.
+``--reuse-simulated`` keeps the simulated sets an earlier run left in ``OUT`` (the same
+``--seed``, ``--per-face``, ``--identities``, ``--test-per-person`` and ``--no-vary`` are the
+caller's to keep) and runs only the experiment: the simulation of 9 x 200 images takes minutes.
 """
 
 from __future__ import annotations
@@ -46,6 +52,41 @@ def test_people(data: Path, work: Path) -> list[Path]:
     return out
 
 
+def worst_sheet(model_path: Path, test_h5: Path, out_png: Path) -> None:
+    """The model's 9 worst samples of a normalized test set and 3 of median error, as one picture."""
+    import cv2
+    import numpy as np
+
+    from gazeaug.io_h5 import read_h5
+    from gazeaug.metrics import angular_errors_deg
+    from gazeaug.train import load_model, predict_arrays
+
+    model, _ = load_model(model_path)
+    d = read_h5(test_h5)
+    pred = predict_arrays(model, d["left_eye"], d["right_eye"], d["head_pose"])
+    err = angular_errors_deg(pred, d["gaze"])
+
+    def tile(i: int) -> np.ndarray:
+        eyes = np.concatenate([d["right_eye"][i], d["left_eye"][i]], axis=1)  # as a viewer sees them
+        im = np.ascontiguousarray(cv2.cvtColor(cv2.resize(eyes, None, fx=4, fy=4), cv2.COLOR_RGB2BGR))
+        t, q = np.degrees(d["gaze"][i]), np.degrees(pred[i])
+        lines = (
+            (f"true {t[0]:+.0f} {t[1]:+.0f}", (80, 255, 80)),
+            (f"pred {q[0]:+.0f} {q[1]:+.0f}", (80, 80, 255)),
+            (f"err {err[i]:.0f}", (255, 255, 255)),
+        )
+        for k, (text, colour) in enumerate(lines):
+            for width, c in ((3, (0, 0, 0)), (1, colour)):
+                cv2.putText(im, text, (4, 16 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.5, c, width)
+        return im
+
+    worst = np.argsort(-err)[:9]
+    median = np.argsort(np.abs(err - np.median(err)))[:3]
+    picks = [*worst, *median]
+    rows = [np.concatenate([tile(int(i)) for i in picks[r : r + 3]], axis=1) for r in range(0, len(picks), 3)]
+    cv2.imwrite(str(out_png), np.concatenate(rows, axis=0))
+
+
 def main() -> None:
     """Run it."""
     from gazeaug.experiment import ExperimentSettings, run_experiment
@@ -70,6 +111,11 @@ def main() -> None:
         action="store_true",
         help="augment with gaze redirection: 3D eyes turned to the wheelchair rig's targets (JobSettings.eyes)",
     )
+    ap.add_argument(
+        "--reuse-simulated",
+        action="store_true",
+        help="keep the simulated sets an earlier run with the same options left in OUT (each needs its labels.csv)",
+    )
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
@@ -79,17 +125,23 @@ def main() -> None:
     people = test_people(args.data, out / "people")
     kw = {"progress": False, "overwrite": True, "settings": sim}
     train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"
-    simulate(
-        faces,
-        BUILTIN_RIGS["screen"],
-        train_dir,
-        per_face=args.per_face,
-        identities_per_face=args.identities,
-        seed=args.seed,
-        **kw,
-    )
-    simulate(people, BUILTIN_RIGS["wheelchair"], test_dir, per_face=args.test_per_person, seed=args.seed + 1, **kw)
-    simulate(people, BUILTIN_RIGS["screen"], same_dir, per_face=args.test_per_person, seed=args.seed + 1, **kw)
+
+    def wanted(folder: Path) -> bool:
+        return not (args.reuse_simulated and (folder / "labels.csv").is_file())
+
+    if wanted(train_dir):
+        simulate(
+            faces,
+            BUILTIN_RIGS["screen"],
+            train_dir,
+            per_face=args.per_face,
+            identities_per_face=args.identities,
+            seed=args.seed,
+            **kw,
+        )
+    for folder, rig_name in ((test_dir, "wheelchair"), (same_dir, "screen")):
+        if wanted(folder):
+            simulate(people, BUILTIN_RIGS[rig_name], folder, per_face=args.test_per_person, seed=args.seed + 1, **kw)
     t_sim = time.perf_counter() - t0
     rig = BUILTIN_RIGS["wheelchair"]
     settings = ExperimentSettings(
@@ -104,6 +156,8 @@ def main() -> None:
         eyes="redirect" if args.redirect_eyes else "keep",
     )
     res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)
+    report = out / "report"
+    worst_sheet(report / "seed0" / "model_augmented.pt", report / "test_normalized.h5", report / "worst_augmented.png")
     summary: dict[str, object] = {
         "people": len(people),
         "train_images": len(TRAIN_PHOTOS) * args.per_face,

@@ -344,8 +344,9 @@ def redirect_subject(
 
     The eye openings' triangles are cut out and an eyeball put behind each, as
     :class:`gazeaug.simulate.SimSubject` makes them: the eyes' sizes, lid drop,
-    kappa and sclera drawn (:func:`gazeaug.simulate.eyes_only`), the photo's own
-    iris colour, face shape and texture. The lids follow the new gaze's pitch
+    kappa, sclera and iris colour drawn (:func:`gazeaug.simulate.eyes_only`; the
+    photo's own iris colour for 30 % of the draws), the photo's own face shape and
+    texture. The lids follow the new gaze's pitch
     from the source's own (:func:`source_eye_pitch`).
 
     Raises:

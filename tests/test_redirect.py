@@ -100,6 +100,35 @@ def test_redirected_labels_follow_the_target_not_the_source(astronaut):
     assert min(rows["down"]) > max(rows["up"]) + 1.0
 
 
+def test_redirected_eyes_draw_their_iris_colour(astronaut):
+    # the simulator's draw: the photo's own iris for photo_iris_share of the subjects, else a palette
+    # colour times a brightness in [0.8, 1.2] and a per-channel factor in [0.92, 1.08]
+    from gazeaug.simulate import IRIS_PALETTE, SimSettings, draw_subject, eyes_only
+
+    fit, asset = astronaut
+    own = palette = 0
+    for seed in range(60):
+        draw = eyes_only(draw_subject(SimSettings(), np.random.default_rng(seed)))
+        if draw.iris_rgb is None:
+            own += 1
+            continue
+        palette += 1
+        c = np.asarray(draw.iris_rgb)
+        assert any(
+            np.all(c >= 0.8 * 0.92 * np.asarray(p) - 1e-9) and np.all(c <= 1.2 * 1.08 * np.asarray(p) + 1e-9)
+            for p in IRIS_PALETTE
+        ), c
+    # 30 % of 60: 18 expected, binomial standard deviation 3.5
+    assert 7 <= own <= 29 and own + palette == 60
+    # the subject's eyes take the drawn colour (or the photo's, measured around MediaPipe's iris points)
+    for seed in range(6):
+        subject = redirect_subject(fit, asset, np.random.default_rng(seed))
+        drawn = subject.draw.iris_rgb
+        for side in ("left", "right"):
+            expected = subject.photo.iris_rgb[side] if drawn is None else np.asarray(drawn)
+            np.testing.assert_allclose(subject.iris_colour[side], expected)
+
+
 def test_job_settings_redirect_needs_a_rig_and_is_recorded_only_when_set():
     wheel = BUILTIN_RIGS["wheelchair"].as_dict()
     assert "eyes" not in JobSettings(kind="augment", rig=wheel).as_dict()  # earlier outputs' settings still match
