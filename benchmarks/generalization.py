@@ -19,9 +19,9 @@
    predicted (pitch, yaw) in degrees, the error) and 3 of median error.
 
 Everything random derives from ``--seed``. The report lands in ``OUT/report/``.
-``--reuse-simulated`` keeps the simulated sets an earlier run left in ``OUT`` (the same
-``--seed``, ``--per-face``, ``--identities``, ``--test-per-person`` and ``--no-vary`` are the
-caller's to keep) and runs only the experiment: the simulation of 9 x 200 images takes minutes.
+``--reuse-simulated`` keeps the simulated sets an earlier run left in ``OUT`` and runs only the
+experiment (the simulation of 9 x 200 images takes minutes); a set whose ``simulation.json``
+records another seed, rig, image count or identity setting is refused (exit 2).
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ def main() -> None:
     ap.add_argument(
         "--reuse-simulated",
         action="store_true",
-        help="keep the simulated sets an earlier run with the same options left in OUT (each needs its labels.csv)",
+        help="keep the simulated sets an earlier run left in OUT; refused when one was made with other options",
     )
     args = ap.parse_args()
     warnings.simplefilter("ignore")
@@ -126,10 +126,31 @@ def main() -> None:
     kw = {"progress": False, "overwrite": True, "settings": sim}
     train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"
 
-    def wanted(folder: Path) -> bool:
-        return not (args.reuse_simulated and (folder / "labels.csv").is_file())
+    def wanted(folder: Path, rig_name: str, seed: int, images: int) -> bool:
+        """Whether to simulate ``folder``; with --reuse-simulated, an earlier set made with other options exits 2."""
+        if not (args.reuse_simulated and (folder / "labels.csv").is_file()):
+            return True
+        try:
+            made = json.loads((folder / "simulation.json").read_text())
+            then = (made["rig"]["name"], made["seed"], made["images"], made["settings"]["vary_identity"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            ap.exit(2, f"{folder}: cannot reuse it (no readable simulation.json: {exc}); drop --reuse-simulated\n")
+        now = (rig_name, seed, images, not args.no_vary)
+        if then != now:
+            ap.exit(
+                2,
+                f"{folder}: cannot reuse it: simulated with (rig, seed, images, vary identity) {then}, this run "
+                f"asks for {now}; drop --reuse-simulated\n",
+            )
+        return False
 
-    if wanted(train_dir):
+    # every set checked before any is simulated: a refusal costs no minutes
+    todo = {
+        train_dir: wanted(train_dir, "screen", args.seed, len(faces) * args.per_face),
+        test_dir: wanted(test_dir, "wheelchair", args.seed + 1, len(people) * args.test_per_person),
+        same_dir: wanted(same_dir, "screen", args.seed + 1, len(people) * args.test_per_person),
+    }
+    if todo[train_dir]:
         simulate(
             faces,
             BUILTIN_RIGS["screen"],
@@ -140,7 +161,7 @@ def main() -> None:
             **kw,
         )
     for folder, rig_name in ((test_dir, "wheelchair"), (same_dir, "screen")):
-        if wanted(folder):
+        if todo[folder]:
             simulate(people, BUILTIN_RIGS[rig_name], folder, per_face=args.test_per_person, seed=args.seed + 1, **kw)
     t_sim = time.perf_counter() - t0
     rig = BUILTIN_RIGS["wheelchair"]
@@ -156,8 +177,6 @@ def main() -> None:
         eyes="redirect" if args.redirect_eyes else "keep",
     )
     res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)
-    report = out / "report"
-    worst_sheet(report / "seed0" / "model_augmented.pt", report / "test_normalized.h5", report / "worst_augmented.png")
     summary: dict[str, object] = {
         "people": len(people),
         "train_images": len(TRAIN_PHOTOS) * args.per_face,
@@ -178,7 +197,10 @@ def main() -> None:
                     row[f"{model}.mean_deg_std"] = None if v["std"] is None else round(v["std"], 2)
         row["reduction_percent"] = test.get("reduction_percent")
         summary[name] = row
-    print(json.dumps(summary))
+    print(json.dumps(summary), flush=True)
+    report = out / "report"  # the first seed's model (run_experiment's seed folders are named by their seeds)
+    first = report / f"seed{args.seed}" / "model_augmented.pt"
+    worst_sheet(first, report / "test_normalized.h5", report / "worst_augmented.png")
 
 
 if __name__ == "__main__":

@@ -345,8 +345,8 @@ def redirect_subject(
     The eye openings' triangles are cut out and an eyeball put behind each, as
     :class:`gazeaug.simulate.SimSubject` makes them: the eyes' sizes, lid drop,
     kappa, sclera and iris colour drawn (:func:`gazeaug.simulate.eyes_only`; the
-    photo's own iris colour for 30 % of the draws), the photo's own face shape and
-    texture. The lids follow the new gaze's pitch
+    photo's own iris colour for ``photo_iris_share`` of the draws, 30 % by default),
+    the photo's own face shape and texture. The lids follow the new gaze's pitch
     from the source's own (:func:`source_eye_pitch`).
 
     Raises:

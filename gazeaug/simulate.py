@@ -3,9 +3,10 @@
 A subject is made from one face photo: its facemesh mesh (with the background
 rings of :mod:`gazeaug.render`), the eye openings cut out, and behind each
 opening a 3D eyeball (sphere, 12 mm radius, its centre 10.5 mm behind the
-eye contour): white, shaded sclera, an iris in the subject's own iris colour
-(measured in the photo around MediaPipe's iris landmarks) with a darker
-limbus, and a pupil. The eyeball's optical axis points at the target, offset
+eye contour): white, shaded sclera, an iris in the subject's iris colour
+(the photo's own, measured around MediaPipe's iris landmarks, or drawn: see
+:class:`SimSettings`' ``photo_iris_share``) with a darker limbus, and a pupil.
+The eyeball's optical axis points at the target, offset
 from the visual axis by a per-subject angle (about 5 deg, as in real eyes;
 the label is the visual axis: the line to the target). The upper eyelid
 follows vertical gaze (the lid contour moves by ``lid_follow_mm * sin(pitch)``
