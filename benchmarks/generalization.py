@@ -88,7 +88,21 @@ def worst_sheet(model_path: Path, test_h5: Path, out_png: Path) -> None:
 
 
 def main() -> None:
-    """Run it."""
+    """Run it: a library error or an unwritable OUT gives one line and exit 2, Ctrl-C exit 130."""
+    from facemesh.types import FaceMeshError
+
+    try:
+        run()
+    except (FaceMeshError, OSError) as exc:  # GazeAugError and facemesh's input errors; an unwritable OUT
+        print(f"generalization: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        print("generalization: interrupted", file=sys.stderr)
+        sys.exit(130)
+
+
+def run() -> None:
+    """Simulate, run the experiment, print the summary and draw the worst samples."""
     from gazeaug.experiment import ExperimentSettings, run_experiment
     from gazeaug.sampling import BUILTIN_RIGS
     from gazeaug.simulate import SimSettings, simulate
@@ -122,6 +136,9 @@ def main() -> None:
     out = args.output
     sim = SimSettings(vary_identity=not args.no_vary)
     faces = [args.data / "faces" / n for n in TRAIN_PHOTOS]
+    missing = [f for f in faces if not f.is_file()]
+    if missing:  # before anything is written to OUT
+        ap.exit(2, f"{missing[0]}: no such file (one of the 9 training photos; --data: ../shared/data)\n")
     people = test_people(args.data, out / "people")
     kw = {"progress": False, "overwrite": True, "settings": sim}
     train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"
