@@ -1,7 +1,7 @@
 """Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
-[--test-per-person 15] [--no-vary] [--redirect-eyes] [--reuse-simulated]``
+[--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]``
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -21,7 +21,9 @@
 Everything random derives from ``--seed``. The report lands in ``OUT/report/``.
 ``--reuse-simulated`` keeps the simulated sets an earlier run left in ``OUT`` and runs only the
 experiment (the simulation of 9 x 200 images takes minutes); a set whose ``simulation.json``
-records another seed, rig, image count or identity setting is refused (exit 2).
+records another seed, rig, image count, subject count (``--identities``) or identity setting is
+refused (exit 2). What it cannot see is the code: sets simulated by an older version of the
+simulator are reused as they are, so simulate again after changing it.
 """
 
 from __future__ import annotations
@@ -114,6 +116,7 @@ def run() -> None:
     ap.add_argument("--per-face", type=int, default=40)
     ap.add_argument("--identities", type=int, default=40, help="identities per training photo")
     ap.add_argument("--test-per-person", type=int, default=15)
+    ap.add_argument("--per-sample", type=int, default=4, help="K: augmented samples per training image")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the augmented set's size")
@@ -143,29 +146,35 @@ def run() -> None:
     kw = {"progress": False, "overwrite": True, "settings": sim}
     train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"
 
-    def wanted(folder: Path, rig_name: str, seed: int, images: int) -> bool:
+    def wanted(folder: Path, rig_name: str, seed: int, images: int, subjects: int) -> bool:
         """Whether to simulate ``folder``; with --reuse-simulated, an earlier set made with other options exits 2."""
         if not (args.reuse_simulated and (folder / "labels.csv").is_file()):
             return True
         try:
             made = json.loads((folder / "simulation.json").read_text())
-            then = (made["rig"]["name"], made["seed"], made["images"], made["settings"]["vary_identity"])
+            then = (
+                made["rig"]["name"],
+                made["seed"],
+                made["images"],
+                made["subjects"],
+                made["settings"]["vary_identity"],
+            )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             ap.exit(2, f"{folder}: cannot reuse it (no readable simulation.json: {exc}); drop --reuse-simulated\n")
-        now = (rig_name, seed, images, not args.no_vary)
+        now = (rig_name, seed, images, subjects, not args.no_vary)
         if then != now:
             ap.exit(
                 2,
-                f"{folder}: cannot reuse it: simulated with (rig, seed, images, vary identity) {then}, this run "
-                f"asks for {now}; drop --reuse-simulated\n",
+                f"{folder}: cannot reuse it: simulated with (rig, seed, images, subjects, vary identity) {then}, "
+                f"this run asks for {now}; drop --reuse-simulated\n",
             )
         return False
 
     # every set checked before any is simulated: a refusal costs no minutes
     todo = {
-        train_dir: wanted(train_dir, "screen", args.seed, len(faces) * args.per_face),
-        test_dir: wanted(test_dir, "wheelchair", args.seed + 1, len(people) * args.test_per_person),
-        same_dir: wanted(same_dir, "screen", args.seed + 1, len(people) * args.test_per_person),
+        train_dir: wanted(train_dir, "screen", args.seed, len(faces) * args.per_face, len(faces) * args.identities),
+        test_dir: wanted(test_dir, "wheelchair", args.seed + 1, len(people) * args.test_per_person, len(people)),
+        same_dir: wanted(same_dir, "screen", args.seed + 1, len(people) * args.test_per_person, len(people)),
     }
     if todo[train_dir]:
         simulate(
@@ -183,7 +192,7 @@ def run() -> None:
     t_sim = time.perf_counter() - t0
     rig = BUILTIN_RIGS["wheelchair"]
     settings = ExperimentSettings(
-        per_sample=4,
+        per_sample=args.per_sample,
         distribution=rig.distribution(),
         # the library's defaults (not the built-in setup's shorter budget): fitted to the augmented set
         train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size),
@@ -198,6 +207,7 @@ def run() -> None:
         "people": len(people),
         "train_images": len(TRAIN_PHOTOS) * args.per_face,
         "identities_per_photo": args.identities,
+        "per_sample": args.per_sample,
         "vary_identity": not args.no_vary,
         "eyes": "redirect" if args.redirect_eyes else "keep",
         "simulate_s": round(t_sim, 1),

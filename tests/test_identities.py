@@ -233,3 +233,59 @@ def test_simulate_takes_face_sources_and_records_the_person(tmp_path):
     simulate([src], BUILTIN_RIGS["screen"], out, per_face=1, progress=False)
     row = json.loads((out / "simulation.jsonl").read_text().splitlines()[0])
     assert row["person"] == "clip" and row["source_face"] == "clip.mp4@t=1.00s"
+
+
+# --------------------------------------------------------------------------- what is read from the photo
+
+
+def _ellipse(centre, axes, n=16):
+    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    return np.stack([centre[0] + axes[0] * np.cos(a), centre[1] + axes[1] * np.sin(a)], axis=1)
+
+
+def test_skin_around_the_eyes_is_read_beyond_the_dark_lid_margin():
+    """Skin 150 grey, a lid margin of 30 along each contour: the reading is the skin, not the margin."""
+    import cv2
+
+    from gazeaug.simulate import SKIN_RING_SCALES, skin_around_eyes
+
+    w = h = 400
+    tex = np.full((h, w, 3), 150, np.uint8)
+    contours = {"left": list(range(16)), "right": list(range(16, 32))}
+    px = np.concatenate([_ellipse((120, 200), (40, 14)), _ellipse((280, 200), (40, 14))])
+    for loop in (px[:16], px[16:]):  # the margin: 5 px wide along the contour
+        cv2.polylines(tex, [np.round(loop).astype(np.int32)], True, (30, 30, 30), 5)
+    uv = (px + 0.5) / [w, h]  # the inverse of uv_to_pixels
+    assert max(SKIN_RING_SCALES) * 40 < 80  # the rings stay clear of the other eye's margin
+    assert skin_around_eyes(tex, uv, contours) == pytest.approx(150.0)
+    # the old reading, on the contour itself, took the margin
+    on = np.round(px).astype(int)
+    assert np.median(tex[on[:, 1], on[:, 0], 0]) == 30
+
+
+def test_iris_colour_leaves_out_what_the_lids_cover():
+    """An iris half under the upper lid: only its pixels inside the eye contour count."""
+    import cv2
+
+    from gazeaug.simulate import _iris_colour, eye_contours
+
+    iris_rgb, lid_rgb = (40, 90, 160), (200, 150, 120)
+    img = np.zeros((200, 200, 3), np.uint8)
+    img[:] = lid_rgb
+    loop = eye_contours()["right"]
+    pts = np.zeros((478, 2))
+    pts[loop] = _ellipse((100, 114), (60, 12), len(loop))  # the opening: y from 102 to 126
+    inside = np.zeros((200, 200), np.uint8)
+    cv2.fillPoly(inside, [np.round(pts[loop]).astype(np.int32)], 1)
+    img[inside > 0] = (235, 230, 225)  # sclera
+    iris = np.zeros((200, 200), np.uint8)
+    cv2.circle(iris, (100, 100), 20, 1, -1)
+    img[(iris > 0) & (inside > 0)] = iris_rgb  # the iris shows only inside the opening
+    pts[468] = (100, 100)
+    pts[469:473] = [(120, 100), (100, 80), (80, 100), (100, 120)]
+    # most of the ring (45-90 % of the radius) lies above the opening, under the lid
+    ys, xs = np.mgrid[0:200, 0:200]
+    d = np.hypot(xs - 100, ys - 100)
+    ring = (d > 9) & (d < 18)
+    assert (ring & (inside > 0)).sum() < 0.5 * ring.sum()
+    np.testing.assert_allclose(_iris_colour(img, pts, "right"), iris_rgb)
