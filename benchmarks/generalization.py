@@ -134,6 +134,11 @@ def run() -> None:
         help="keep the simulated sets an earlier run left in OUT; refused when one was made with other options",
     )
     args = ap.parse_args()
+    for name in ("per_face", "identities", "test_per_person", "per_sample", "seeds"):
+        if getattr(args, name) < 1:  # before anything is simulated
+            ap.error(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
+    if args.identities > args.per_face:
+        ap.error(f"--identities: expected at most --per-face ({args.per_face}), got {args.identities}")
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     out = args.output
@@ -159,7 +164,9 @@ def run() -> None:
                 made["subjects"],
                 made["settings"]["vary_identity"],
             )
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+        except KeyError as exc:
+            ap.exit(2, f"{folder}: cannot reuse it (its simulation.json records no {exc}: an older version made it)\n")
+        except (OSError, ValueError, TypeError) as exc:
             ap.exit(2, f"{folder}: cannot reuse it (no readable simulation.json: {exc}); drop --reuse-simulated\n")
         now = (rig_name, seed, images, subjects, not args.no_vary)
         if then != now:

@@ -488,15 +488,17 @@ def _iris_colour(image: NDArray[np.uint8], points: NDArray[np.float64], side: st
     h, w = image.shape[:2]
     x0, x1 = max(0, int(c[0] - rad) - 1), min(w, int(c[0] + rad) + 2)
     y0, y1 = max(0, int(c[1] - rad) - 1), min(h, int(c[1] + rad) + 2)
+    if y1 - y0 < 2 or x1 - x0 < 2:
+        return np.array([90.0, 70.0, 50.0])
     ys, xs = np.mgrid[y0:y1, x0:x1]
     d = np.hypot(xs - c[0], ys - c[1])
-    ring_sel = (d > 0.45 * rad) & (d < 0.9 * rad)
-    inside = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
-    poly = np.round((points[eye_contours()[side]] - [x0, y0]) * 16).astype(np.int32)
-    cv2.fillPoly(inside, [poly], (1,), lineType=cv2.LINE_8, shift=4)
-    sel = ring_sel & (inside > 0)
-    if sel.sum() < 4:
-        sel = ring_sel
+    sel = (d > 0.45 * rad) & (d < 0.9 * rad)
+    contour = np.asarray(points[eye_contours()[side]], dtype=np.float32).reshape(-1, 1, 2)
+    inside = sel.copy()
+    for y, x in zip(*np.nonzero(sel), strict=True):  # pixel centres strictly inside the contour
+        inside[y, x] = cv2.pointPolygonTest(contour, (float(xs[y, x]), float(ys[y, x])), False) > 0
+    if inside.sum() >= 4:
+        sel = inside
     if sel.sum() < 4:
         return np.array([90.0, 70.0, 50.0])
     return np.asarray(np.median(image[y0:y1, x0:x1][sel].astype(np.float64), axis=0))
@@ -512,8 +514,9 @@ def skin_around_eyes(texture: NDArray[np.uint8], uv: NDArray[np.float64], contou
 
     Read on the eye contours scaled about their centres by :data:`SKIN_RING_SCALES`
     (texture pixels), not on the contours themselves: there the lid margin, the
-    lashes and their shadow read 30-60 % darker than the skin (measured on the 20
-    benchmark faces), which made a sclera of ``skin x 1.1-1.6`` darker than skin.
+    lashes and their shadow read 0.37-1.10 of the skin (median 0.62, on the 18
+    faces of ``benchmarks/generalization.py``), which made a sclera of
+    ``skin x 1.1-1.6`` darker than the skin beside it.
 
     Args:
         texture: (h, w, 3) uint8 RGB.
@@ -521,7 +524,7 @@ def skin_around_eyes(texture: NDArray[np.uint8], uv: NDArray[np.float64], contou
         contours: :func:`eye_contours`.
     """
     th, tw = texture.shape[:2]
-    lum = texture.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+    luma = np.array([0.299, 0.587, 0.114])
     values = []
     for loop in contours.values():
         px = uv_to_pixels(uv[np.asarray(loop)], (tw, th))
@@ -530,7 +533,7 @@ def skin_around_eyes(texture: NDArray[np.uint8], uv: NDArray[np.float64], contou
             q = c + (px - c) * k
             xi = np.clip(np.round(q[:, 0]).astype(int), 0, tw - 1)
             yi = np.clip(np.round(q[:, 1]).astype(int), 0, th - 1)
-            values.append(lum[yi, xi])
+            values.append(texture[yi, xi].astype(np.float64) @ luma)
     return float(np.median(np.concatenate(values)))
 
 

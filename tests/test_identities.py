@@ -244,23 +244,28 @@ def _ellipse(centre, axes, n=16):
 
 
 def test_skin_around_the_eyes_is_read_beyond_the_dark_lid_margin():
-    """Skin 150 grey, a lid margin of 30 along each contour: the reading is the skin, not the margin."""
-    import cv2
+    """Bands about each eye, in the contour's own scale: opening 230, lid margin 30, skin 150, beyond 2x 60.
 
+    The reading is the skin's band (1.3-2.0 x the contour), where SKIN_RING_SCALES lie; the contour
+    itself lies on the margin.
+    """
     from gazeaug.simulate import SKIN_RING_SCALES, skin_around_eyes
 
-    w = h = 400
-    tex = np.full((h, w, 3), 150, np.uint8)
+    w, h = 500, 360
+    centres, axes = ((130.0, 180.0), (330.0, 180.0)), (40.0, 14.0)
+    ys, xs = np.mgrid[0:h, 0:w]
+    # each pixel's scale relative to the nearer eye's contour ellipse (1 on the contour)
+    k = np.min([np.hypot((xs - cx) / axes[0], (ys - cy) / axes[1]) for cx, cy in centres], axis=0)
+    grey = np.select([k < 1.0, k < 1.3, k < 2.0], [230, 30, 150], 60).astype(np.uint8)
+    tex = np.repeat(grey[..., None], 3, axis=2)
     contours = {"left": list(range(16)), "right": list(range(16, 32))}
-    px = np.concatenate([_ellipse((120, 200), (40, 14)), _ellipse((280, 200), (40, 14))])
-    for loop in (px[:16], px[16:]):  # the margin: 5 px wide along the contour
-        cv2.polylines(tex, [np.round(loop).astype(np.int32)], True, (30, 30, 30), 5)
+    px = np.concatenate([_ellipse(centres[0], axes), _ellipse(centres[1], axes)])
     uv = (px + 0.5) / [w, h]  # the inverse of uv_to_pixels
-    assert max(SKIN_RING_SCALES) * 40 < 80  # the rings stay clear of the other eye's margin
+    assert 1.3 < min(SKIN_RING_SCALES) and max(SKIN_RING_SCALES) < 2.0  # the skin band, as set above
     assert skin_around_eyes(tex, uv, contours) == pytest.approx(150.0)
-    # the old reading, on the contour itself, took the margin
-    on = np.round(px).astype(int)
-    assert np.median(tex[on[:, 1], on[:, 0], 0]) == 30
+    # a texture of another size: its pixels are found through the same uv
+    big = np.repeat(np.repeat(tex, 2, axis=0), 2, axis=1)
+    assert skin_around_eyes(big, uv, contours) == pytest.approx(150.0)
 
 
 def test_iris_colour_leaves_out_what_the_lids_cover():
@@ -289,3 +294,18 @@ def test_iris_colour_leaves_out_what_the_lids_cover():
     ring = (d > 9) & (d < 18)
     assert (ring & (inside > 0)).sum() < 0.5 * ring.sum()
     np.testing.assert_allclose(_iris_colour(img, pts, "right"), iris_rgb)
+
+
+def test_iris_colour_falls_back_to_the_ring_then_to_a_default():
+    """Under a closed lid the whole ring is read; an iris off the image gives the default brown."""
+    from gazeaug.simulate import _iris_colour, eye_contours
+
+    img = np.full((200, 200, 3), (200, 150, 120), np.uint8)  # all lid
+    loop = eye_contours()["right"]
+    pts = np.zeros((478, 2))
+    pts[loop] = _ellipse((100, 170), (60, 8), len(loop))  # the opening far below the iris
+    pts[468] = (100, 100)
+    pts[469:473] = [(120, 100), (100, 80), (80, 100), (100, 120)]
+    np.testing.assert_allclose(_iris_colour(img, pts, "right"), (200, 150, 120))
+    pts[468:473] += (0, -400)  # the iris above the image
+    np.testing.assert_allclose(_iris_colour(img, pts, "right"), (90, 70, 50))
