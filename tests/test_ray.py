@@ -417,7 +417,14 @@ def test_ctrl_c_from_the_terminal_keeps_a_resumable_run(dataset, local_output, t
     cmd += ["--per-sample", "2", "--seed", "7", "--block-size", "1"]
     log = tmp_path / "err.txt"
     with open(log, "w") as err:
-        p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True, text=True)
+        p = subprocess.Popen(
+            cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            start_new_session=True,
+            text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not ignored, as in a background job
+        )
         deadline = time.monotonic() + 120
         while "sample" not in log.read_text() and time.monotonic() < deadline and p.poll() is None:
             time.sleep(0.2)  # the progress bar is up: Ray started, the output opened, the actors starting
