@@ -504,6 +504,9 @@ def _iris_colour(image: NDArray[np.uint8], points: NDArray[np.float64], side: st
     return np.asarray(np.median(image[y0:y1, x0:x1][sel].astype(np.float64), axis=0))
 
 
+#: Rec. 601 luma weights of (R, G, B): the grey of a colour, as the simulator reads skin and shading.
+_LUMA = np.array([0.299, 0.587, 0.114])
+
 #: Where the skin around an eye is read: the eye contour scaled about its centre by these factors
 #: (in the texture), beyond the lid margin and lashes and short of the brow (see ``skin_around_eyes``).
 SKIN_RING_SCALES = (1.4, 1.6, 1.8)
@@ -524,7 +527,6 @@ def skin_around_eyes(texture: NDArray[np.uint8], uv: NDArray[np.float64], contou
         contours: :func:`eye_contours`.
     """
     th, tw = texture.shape[:2]
-    luma = np.array([0.299, 0.587, 0.114])
     values = []
     for loop in contours.values():
         px = uv_to_pixels(uv[np.asarray(loop)], (tw, th))
@@ -533,7 +535,7 @@ def skin_around_eyes(texture: NDArray[np.uint8], uv: NDArray[np.float64], contou
             q = c + (px - c) * k
             xi = np.clip(np.round(q[:, 0]).astype(int), 0, tw - 1)
             yi = np.clip(np.round(q[:, 1]).astype(int), 0, th - 1)
-            values.append(texture[yi, xi].astype(np.float64) @ luma)
+            values.append(texture[yi, xi].astype(np.float64) @ _LUMA)
     return float(np.median(np.concatenate(values)))
 
 
@@ -549,7 +551,7 @@ def _delit(texture: NDArray[np.uint8], strength: float) -> NDArray[np.float64]:
     tex = texture.astype(np.float64)
     if strength <= 0:
         return tex
-    y = tex @ np.array([0.299, 0.587, 0.114])
+    y = tex @ _LUMA
     sigma = 0.08 * max(texture.shape[:2])
     low = np.asarray(cv2.GaussianBlur(y, (0, 0), sigma), dtype=np.float64)
     shading = np.clip(low / max(float(np.median(low)), 1.0), 0.35, 2.5)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -139,3 +140,12 @@ def unprivileged_prefix() -> list[str]:
     if shutil.which("setpriv") is None:
         pytest.skip("running as root without setpriv: file permissions cannot be made to bind")
     return ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` for a child a test interrupts: SIGINT delivered as a terminal's Ctrl-C delivers it.
+
+    A suite started as a shell's background job begins with SIGINT ignored, and Python keeps an
+    ignored SIGINT ignored: without this the child would finish its run instead of stopping.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

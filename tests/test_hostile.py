@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import expect_typed_error, mutations, unprivileged_prefix
+from helpers import default_sigint, expect_typed_error, mutations, unprivileged_prefix
 
 from facemesh.outputs import OutputBusyError, output_lock
 
@@ -441,16 +441,10 @@ def test_unknown_picture_extensions_are_refused_before_work(tmp_path, capsys, sa
 # --------------------------------------------------------------------------------------------
 
 
-def _default_sigint() -> None:
-    """In the child before exec: Ctrl-C as a terminal delivers it, even when the suite runs in a shell's
-    background job (which starts with SIGINT ignored, and Python keeps an ignored SIGINT ignored)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def _interrupt_when(cmd: list, ready, timeout: float = 120.0) -> subprocess.CompletedProcess:
     """Start ``cmd``, send SIGINT once ``ready()`` is true, return the finished process."""
     proc = subprocess.Popen(
-        [*map(str, cmd)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint
+        [*map(str, cmd)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint
     )
     t0 = time.monotonic()
     while not ready():

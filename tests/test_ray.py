@@ -21,6 +21,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
+from helpers import default_sigint
 
 from gazeaug.datasets import open_dataset
 from gazeaug.engine import Engine, check_address, map_blocks
@@ -423,7 +424,7 @@ def test_ctrl_c_from_the_terminal_keeps_a_resumable_run(dataset, local_output, t
             stderr=err,
             start_new_session=True,
             text=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # not ignored, as in a background job
+            preexec_fn=default_sigint,
         )
         deadline = time.monotonic() + 120
         while "sample" not in log.read_text() and time.monotonic() < deadline and p.poll() is None:
