@@ -1,7 +1,8 @@
 """Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
-[--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]``
+[--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]
+[--focal 650] [--patch-size 60 36]``
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -21,9 +22,10 @@
 Everything random derives from ``--seed``. The report lands in ``OUT/report/``.
 ``--reuse-simulated`` keeps the simulated sets an earlier run left in ``OUT`` and runs only the
 experiment (the simulation of 9 x 200 images takes minutes); a set whose ``simulation.json``
-records another seed, rig, image count, subject count (``--identities``) or identity setting is
-refused (exit 2). What it cannot see is the code: sets simulated by an older version of the
-simulator are reused as they are, so simulate again after changing it.
+records another simulator revision (:data:`gazeaug.simulate.SIMULATOR_REVISION`), seed, rig,
+image count, subject count (``--identities``) or identity setting is refused (exit 2). The
+revision is raised by hand when a change alters the images: a change that forgets to raise it
+goes unseen.
 """
 
 from __future__ import annotations
@@ -106,8 +108,9 @@ def main() -> None:
 def run() -> None:
     """Simulate, run the experiment, print the summary and draw the worst samples."""
     from gazeaug.experiment import ExperimentSettings, run_experiment
+    from gazeaug.normalize import NormalizationSettings
     from gazeaug.sampling import BUILTIN_RIGS
-    from gazeaug.simulate import SimSettings, simulate
+    from gazeaug.simulate import SIMULATOR_REVISION, SimSettings, simulate
     from gazeaug.train import TrainSettings
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -123,6 +126,10 @@ def run() -> None:
     ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--focal", type=float, default=None, help="normalized focal length f_n, px (default 650)")
+    ap.add_argument(
+        "--patch-size", type=int, nargs=2, default=None, metavar=("W", "H"), help="eye patch, px (default 60 36)"
+    )
     ap.add_argument(
         "--redirect-eyes",
         action="store_true",
@@ -139,6 +146,12 @@ def run() -> None:
             ap.error(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
     if args.identities > args.per_face:
         ap.error(f"--identities: expected at most --per-face ({args.per_face}), got {args.identities}")
+    norm = {}
+    if args.focal is not None:
+        norm["focal_px"] = args.focal
+    if args.patch_size is not None:
+        norm["patch_size_wh"] = tuple(args.patch_size)
+    normalization = NormalizationSettings(**norm)  # before anything is simulated: GazeAugError exits 2
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     out = args.output
@@ -158,6 +171,7 @@ def run() -> None:
         try:
             made = json.loads((folder / "simulation.json").read_text())
             then = (
+                made["simulator_revision"],
                 made["rig"]["name"],
                 made["seed"],
                 made["images"],
@@ -168,11 +182,12 @@ def run() -> None:
             ap.exit(2, f"{folder}: cannot reuse it (its simulation.json records no {exc}: an older version made it)\n")
         except (OSError, ValueError, TypeError) as exc:
             ap.exit(2, f"{folder}: cannot reuse it (no readable simulation.json: {exc}); drop --reuse-simulated\n")
-        now = (rig_name, seed, images, subjects, not args.no_vary)
+        now = (SIMULATOR_REVISION, rig_name, seed, images, subjects, not args.no_vary)
         if then != now:
             ap.exit(
                 2,
-                f"{folder}: cannot reuse it: simulated with (rig, seed, images, subjects, vary identity) {then}, "
+                f"{folder}: cannot reuse it: simulated with (simulator revision, rig, seed, images, subjects, "
+                f"vary identity) {then}, "
                 f"this run asks for {now}; drop --reuse-simulated\n",
             )
         return False
@@ -208,6 +223,7 @@ def run() -> None:
         seeds=args.seeds,
         rig=rig,
         eyes="redirect" if args.redirect_eyes else "keep",
+        normalization=normalization,
     )
     res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)
     summary: dict[str, object] = {
@@ -217,6 +233,7 @@ def run() -> None:
         "per_sample": args.per_sample,
         "vary_identity": not args.no_vary,
         "eyes": "redirect" if args.redirect_eyes else "keep",
+        "normalization": normalization.as_dict(),
         "simulate_s": round(t_sim, 1),
         "total_s": round(time.perf_counter() - t0, 1),
     }

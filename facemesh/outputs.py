@@ -82,7 +82,12 @@ def _check_parent(path: Path, what: str) -> None:
         with tempfile.TemporaryFile(dir=str(base)):
             pass
     except OSError as exc:
-        reason = "the folder is read-only" if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS) else exc.strerror
+        # other errors (ENOENT from /proc, ENOSPC, EIO) say nothing of the folder by themselves: name it the problem
+        reason = (
+            "the folder is read-only"
+            if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
+            else f"files cannot be created there ({exc.strerror or exc})"
+        )
         raise OutputError(f"{path}: cannot write the {what}: {base}: {reason}") from exc
 
 

@@ -560,6 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     xp.add_argument("--lr", type=finite_float, default=1e-3, help=LR_HELP)
     _add_train_input_options(xp)
+    _add_normalization_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
     xp.add_argument(
         "--seeds",
@@ -1141,7 +1142,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise GazeAugError("--test-same-rig goes with --train and --test (the built-in setup simulates its own)")
     if args.per_face is not None and (args.train is not None or args.large):
         raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
-    distribution = _distribution(args)  # a bad rig or distribution is refused before minutes of work
+    distribution = _distribution(args)  # a bad rig, distribution or patch is refused before minutes of work
+    normalization = _settings(args)
     eyes = _eyes(args)
     defaults = TrainSettings()
     if args.train is None:
@@ -1175,6 +1177,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         rig=None if args.rig is None else load_rig(args.rig),
         eyes=eyes,
+        normalization=normalization,
     )
     results = run_experiment(
         args.train,

@@ -54,6 +54,7 @@ import numpy as np
 from .datasets import open_dataset
 from .errors import GazeAugError
 from .jobs import JobSettings, check_redirectable, run_dataset
+from .normalize import NormalizationSettings
 from .sampling import HeadPoseDistribution, Rig
 from .train import TrainSettings
 
@@ -295,6 +296,10 @@ class ExperimentSettings:
             poses and gaze targets are drawn from it.
         eyes: ``"keep"`` (default, the paper's method) or ``"redirect"``: see
             :class:`gazeaug.jobs.JobSettings`.
+        normalization: the normalized camera and eye patch of every set, the original, the
+            augmented and the test sets alike (default: :class:`gazeaug.normalize.NormalizationSettings`'s,
+            the paper's 650 px at 600 mm, 60 x 36 patches). The models record it and are
+            evaluated through it.
     """
 
     per_sample: int = 4
@@ -306,8 +311,13 @@ class ExperimentSettings:
     n_boot: int = 2000
     rig: Rig | None = None
     eyes: str = "keep"
+    normalization: NormalizationSettings = field(default_factory=NormalizationSettings)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.normalization, NormalizationSettings):
+            raise GazeAugError(
+                f"normalization: expected NormalizationSettings, got {type(self.normalization).__name__}"
+            )
         if self.eyes not in JobSettings.EYES:
             raise GazeAugError(f"eyes: expected one of {JobSettings.EYES}, got {self.eyes!r}")
         if self.eyes == "redirect" and self.rig is None:
@@ -477,7 +487,12 @@ def run_experiment(
         return summary
 
     original_h5 = out / "train_original.h5"
-    original = dataset(train_reader, original_h5, JobSettings(kind="normalize-dataset", seed=s.seed), "original")
+    original = dataset(
+        train_reader,
+        original_h5,
+        JobSettings(kind="normalize-dataset", seed=s.seed, normalization=s.normalization),
+        "original",
+    )
     _examples(original_h5, out / "examples_original.png")
     runs_info: dict[str, dict[str, Any]] = {}
     per_seed: list[dict[str, Any]] = []
@@ -493,6 +508,7 @@ def run_experiment(
             seed=seed,
             rig=None if s.rig is None else s.rig.as_dict(),
             eyes=s.eyes,
+            normalization=s.normalization,
         )
         augmented = dataset(train_reader, aug_h5, job, "augmented")
         if i == 0:  # the report's pictures of the augmented set: the first seed's
@@ -540,7 +556,7 @@ def run_experiment(
     run_dataset(
         tests["test"][1],
         out / "test_normalized.h5",
-        JobSettings(kind="normalize-dataset"),
+        JobSettings(kind="normalize-dataset", normalization=s.normalization),
         workers=s.workers,
         overwrite=True,
         progress=progress,
@@ -594,6 +610,7 @@ def run_experiment(
         "distribution": s.distribution.as_dict(),
         "eyes": s.eyes,
         "rig": None if s.rig is None else s.rig.name,
+        "normalization": s.normalization.as_dict(),
         "train": asdict(s.train),
         "seed": s.seed,
         "seeds": s.seeds,

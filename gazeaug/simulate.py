@@ -50,7 +50,15 @@ from .engine import Engine
 from .errors import GazeAugError
 from .sampling import Rig
 
+#: The simulator's revision, recorded in ``simulation.json``: raised whenever a change alters the
+#: images a seed gives (a drawn quantity, a shader, the order of the draws), so a set made before it
+#: can be told apart (``benchmarks/generalization.py --reuse-simulated`` refuses it). 2: the sclera
+#: read against the skin beyond the lid margin, the photo's iris read on pixel centres inside the
+#: eye contour (sets without the field are older).
+SIMULATOR_REVISION = 2
+
 __all__ = [
+    "SIMULATOR_REVISION",
     "SimSettings",
     "SubjectDraw",
     "Glasses",
@@ -1010,6 +1018,9 @@ def simulate(
     from facemesh.outputs import staged_folder
 
     s = settings or SimSettings()
+    for f in faces:  # a missing photo is named before any folder or progress bar appears
+        if isinstance(f, (str, Path)) and not Path(f).is_file():
+            raise GazeAugError(f"{f}: no such file" if not Path(f).exists() else f"{f}: not a file")
     faces = _expand_faces(faces, per_video=per_video, all_faces=all_faces)
     if per_face < 1:
         raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
@@ -1169,6 +1180,7 @@ def _simulate_into(
         "subjects": len(faces) * identities,
         "rig": rig.as_dict(),
         "seed": seed,
+        "simulator_revision": SIMULATOR_REVISION,
     }
     with atomic_write(out / "simulation.json") as fh:
         fh.write(

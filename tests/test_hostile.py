@@ -280,6 +280,15 @@ def test_simulate_names_the_photo_without_a_face(tmp_path, capsys):
     assert not (tmp_path / "sim").exists() and not (tmp_path / "sim.part").exists()
 
 
+def test_simulate_names_a_missing_photo_before_any_progress(tmp_path, capsys):
+    # with progress bars on (no --quiet): the error is the only thing on stderr, and no folder appears
+    for face, says in ((tmp_path / "gone.jpg", "no such file"), (tmp_path, "not a file")):
+        code, _, err = _gazeaug(["simulate", "--faces", face, "-o", tmp_path / "sim"], capsys)
+        assert code == 2
+        _one_line(err, f"{face}: {says}")
+        assert not (tmp_path / "sim").exists() and not (tmp_path / "sim.part").exists()
+
+
 # --------------------------------------------------------------------------------------------
 # 4. A live run's .part is not an interrupted run
 # --------------------------------------------------------------------------------------------
@@ -375,6 +384,15 @@ def test_read_only_folder_every_command(tmp_path, sample_jpg):
             assert list(ro.iterdir()) == [], (prog, argv)
     finally:
         os.chmod(ro, 0o755)
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_output_in_a_folder_that_takes_no_files(tmp_path, capsys):
+    # /proc exists, yet creating a file there fails with ENOENT: the line names the folder as the problem
+    # rather than saying "No such file or directory" of a folder that exists
+    code, _, err = _gazeaug(["simulate", "-o", "/proc/gazeaug-x", "--per-face", "1", "--quiet"], capsys)
+    assert code == 2
+    _one_line(err, "/proc/gazeaug-x: cannot write the dataset folder: /proc: files cannot be created there")
 
 
 @pytest.mark.parametrize("case", ["folder-named-like-the-file", "parent-is-a-file"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import h5py
 import numpy as np
 import pytest
 
@@ -302,11 +303,26 @@ def test_experiment_runs_end_to_end(tmp_path, faces_dir, capsys):
     )
     out = tmp_path / "exp"
     args = ["experiment", "--train", str(tmp_path / "train"), "--test", str(tmp_path / "test"), "-o", str(out)]
-    assert main(args + ["--epochs", "1", "--per-sample", "2", "--quiet"]) == 0
+    # a normalization of its own (MPIIGaze's focal length, a smaller patch): every set and model takes it
+    norm = ["--focal", "960", "--patch-size", "40", "24"]
+    assert main(args + ["--epochs", "1", "--per-sample", "2", "--seeds", "2", *norm, "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "| training dataset | error, original data | error, augmented data | reduction |" in text
     res = json.loads((out / "results.json").read_text())
     assert res["runs"]["original"]["test_count"] == 1 and res["runs"]["augmented"]["rows"] == 4
+    assert res["settings"]["normalization"]["focal_px"] == 960 and res["settings"]["normalization"][
+        "patch_size_wh"
+    ] == [
+        40,
+        24,
+    ]
+    for h5 in ("train_original.h5", "seed0/train_augmented.h5", "seed1/train_augmented.h5", "test_normalized.h5"):
+        with h5py.File(out / h5, "r") as f:
+            assert f["left_eye"].shape[1:] == (24, 40, 3), h5
+            assert json.loads(f.attrs["settings"])["normalization"]["focal_px"] == 960, h5
+    for name in ("original", "augmented"):
+        _, meta = load_model(out / "seed1" / f"model_{name}.pt")
+        assert meta["normalization"]["focal_px"] == 960 and list(meta["patch_size_wh"]) == [40, 24]
     for f in (
         "report.md",
         "examples_augmented.png",

@@ -14,7 +14,7 @@ from gazeaug.datasets import open_dataset
 from gazeaug.normalize import normalize_image
 from gazeaug.pipeline import fit_face
 from gazeaug.sampling import BUILTIN_RIGS, load_rig
-from gazeaug.simulate import SimSettings, SimSubject, eye_contours, simulate
+from gazeaug.simulate import SIMULATOR_REVISION, SimSettings, SimSubject, eye_contours, simulate
 
 
 def _angle(a, b):
@@ -93,6 +93,8 @@ def test_cli_simulate(tmp_path, capsys):
     assert main(["simulate", "--rig", "screen", "--per-face", "2", "-o", str(out), "--quiet"]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["images"] == 2
     assert (out / "labels.csv").is_file() and (out / "simulation.json").is_file()
+    made = json.loads((out / "simulation.json").read_text())
+    assert made["simulator_revision"] == SIMULATOR_REVISION and made["rig"]["name"] == "screen"
     assert main(["simulate", "--per-face", "0", "-o", str(tmp_path / "t")]) == 2
 
 
