@@ -850,7 +850,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def _add_train_input_options(p: argparse.ArgumentParser) -> None:
-    """``--no-augment`` and ``--input``: the training-time augmentation and the model's input mode."""
+    """``--no-augment``, ``--input``, ``--no-mirror-average``: training-time augmentation, input mode, prediction."""
     p.add_argument(
         "--no-augment",
         action="store_true",
@@ -864,13 +864,23 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         help="the model's input: rgb (default) or grey_equalized (grey + histogram equalization, as MPIIGaze; "
         "recorded in the model and applied by predict, evaluate)",
     )
+    p.add_argument(
+        "--no-mirror-average",
+        action="store_true",
+        help="the model predicts from the eyes alone; by default its answer is averaged with its answer on the "
+        "mirrored eyes (recorded in the model and applied by predict, evaluate, track, export)",
+    )
 
 
 def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
     """The TrainSettings keywords of :func:`_add_train_input_options` (checked by TrainSettings)."""
     from .train_augment import TrainAugment
 
-    return {"augment": TrainAugment(enabled=not args.no_augment), "input_mode": args.input}
+    return {
+        "augment": TrainAugment(enabled=not args.no_augment),
+        "input_mode": args.input,
+        "mirror_average": not args.no_mirror_average,
+    }
 
 
 def _cmd_train(args: argparse.Namespace) -> int:

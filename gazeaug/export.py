@@ -72,6 +72,8 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     norm = meta.get("normalization")
     props = {
         "gazeaug.input_mode": str(meta.get("input_mode", "rgb")),
+        # the graph averages with the mirrored eyes itself when this is true: feed it the plain eyes
+        "gazeaug.mirror_average": json.dumps(bool(meta.get("mirror_average", False))),
         "gazeaug.normalization": json.dumps(norm if isinstance(norm, dict) else NormalizationSettings().as_dict()),
         "gazeaug.patch_size_wh": json.dumps([w, h]),
         "gazeaug.output": "gaze (N, 2) float32: (pitch, yaw) radians in the face-centre normalized frame",

@@ -233,6 +233,7 @@ def test_onnx_export_matches_pytorch(tmp_path):
 
     props = {p.key: p.value for p in onnx.load(str(tmp_path / "m.onnx")).metadata_props}
     assert props["gazeaug.input_mode"] == "rgb" and json.loads(props["gazeaug.patch_size_wh"]) == [60, 36]
+    assert json.loads(props["gazeaug.mirror_average"]) is True  # the default; the graph holds the averaging
     assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
     train(data, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=16, input_mode="grey_equalized"), progress=False)
     assert main(["export", str(tmp_path / "g.pt"), "-o", str(tmp_path / "g.onnx")]) == 0
@@ -330,3 +331,81 @@ def test_experiment_runs_end_to_end(tmp_path, faces_dir, capsys):
         "test_normalized.distribution.png",
     ):
         assert (out / f).is_file(), f
+
+
+# --------------------------------------------------------------------------- mirror averaging
+
+
+def _column_net():
+    """A hand-made network: pitch = the left patch's mean grey; yaw = (its bright column - w / 2) / 100 + head yaw."""
+
+    class Net(torch.nn.Module):
+        def forward(self, left, right, head):
+            w = left.shape[-1]
+            profile = left.mean(dim=(1, 2))  # (N, W)
+            x = (profile * torch.arange(w, dtype=left.dtype)).sum(-1) / profile.sum(-1)
+            return torch.stack([left.mean(dim=(1, 2, 3)), (x - w / 2) / 100 + head[:, 1]], dim=1)
+
+    return Net()
+
+
+def _bright_column(x, w=60, h=36):
+    p = torch.zeros(1, 3, h, w)
+    p[..., x] = 1.0
+    return p
+
+
+def test_mirror_average_by_hand():
+    from gazeaug.models.mirror import mirror_averaged
+
+    # left eye: bright column 10, right eye: bright column 20 (w = 60), head yaw 0.05.
+    # Plain: yaw (10 - 30) / 100 + 0.05 = -0.15. Mirrored face: its left eye is the right one mirrored,
+    # column x from w - x, so the bright column lands at 60 - 20 = 40 and the head yaw is -0.05:
+    # yaw (40 - 30) / 100 - 0.05 = 0.05, negated back -0.05. Average: (-0.15 - 0.05) / 2 = -0.10.
+    # Pitch: the mean grey, 3 * 36 / (3 * 36 * 60) = 1 / 60 for both patches, unchanged by the mirror.
+    left, right = _bright_column(10), _bright_column(20)
+    head = torch.tensor([[0.2, 0.05]])
+    got = mirror_averaged(_column_net())(left, right, head)
+    np.testing.assert_allclose(got.numpy(), [[1 / 60, -0.10]], atol=1e-6)
+    # and the plain network alone, for contrast
+    np.testing.assert_allclose(_column_net()(left, right, head).numpy(), [[1 / 60, -0.15]], atol=1e-6)
+
+
+def test_mirror_averaged_model_is_mirror_equivariant(tmp_path):
+    # the averaged model answers the mirrored face with the mirrored answer (exactly, any weights):
+    # f(M r, M l, m h) = m f(l, r, h), M mirroring columns about the principal point, m negating yaw
+    from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
+
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    train(data, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    model, meta = load_model(tmp_path / "m.pt")
+    assert meta["mirror_average"] is True
+    rng = np.random.default_rng(1)
+    left = rng.integers(0, 255, (4, 36, 60, 3), dtype=np.uint8)
+    right = rng.integers(0, 255, (4, 36, 60, 3), dtype=np.uint8)
+    # mirroring twice gives a patch back but for column 0 (its source lies outside; it repeats column 1)
+    for p in (left, right):
+        p[:, :, 0] = p[:, :, 1]
+    head = rng.uniform(-0.3, 0.3, (4, 2))
+    cols = mirrored_columns(60)
+    plain = predict_arrays(model, left, right, head)
+    mirrored = predict_arrays(model, right[:, :, cols], left[:, :, cols], head * MIRROR_PITCHYAW)
+    np.testing.assert_allclose(mirrored, plain * MIRROR_PITCHYAW, atol=1e-5)
+
+
+def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    args = ["train", str(data), "--epochs", "1", "--batch-size", "16", "--quiet"]
+    assert main([*args, "-o", str(tmp_path / "plain.pt"), "--no-mirror-average"]) == 0
+    model, meta = load_model(tmp_path / "plain.pt")
+    assert meta["mirror_average"] is False and meta["prediction"] == {"mirror_average": False}
+    assert not hasattr(model, "net")  # the network itself
+    # a file from before the entry predicts as it always did; a bad entry is refused
+    obj = torch.load(tmp_path / "plain.pt", weights_only=True)
+    del obj["prediction"]
+    torch.save(obj, tmp_path / "old.pt")
+    assert load_model(tmp_path / "old.pt")[1]["mirror_average"] is False
+    obj["prediction"] = {"mirror_average": "yes"}
+    torch.save(obj, tmp_path / "bad.pt")
+    with pytest.raises(GazeAugError, match="'prediction' must be"):
+        load_model(tmp_path / "bad.pt")
