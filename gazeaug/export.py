@@ -9,8 +9,10 @@ mediapipe 0.10.21 needs protobuf < 5).
 The file's ``metadata_props`` say how to feed it (strings; JSON where structured):
 ``gazeaug.input_mode`` (``rgb`` or ``grey_equalized``: pass it to ``prepare_inputs``),
 ``gazeaug.normalization`` (the normalized camera the training data used, as
-:meth:`NormalizationSettings.as_dict` writes it), ``gazeaug.patch_size_wh`` and
-``gazeaug.output`` (what ``gaze`` holds).
+:meth:`NormalizationSettings.as_dict` writes it), ``gazeaug.patch_size_wh``,
+``gazeaug.mirror_average`` (``true`` when the exported module is
+:func:`gazeaug.models.mirror.mirror_averaged`'s: the graph itself averages with the
+mirrored eyes) and ``gazeaug.output`` (what ``gaze`` holds).
 """
 
 from __future__ import annotations
@@ -72,8 +74,9 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     norm = meta.get("normalization")
     props = {
         "gazeaug.input_mode": str(meta.get("input_mode", "rgb")),
-        # the graph averages with the mirrored eyes itself when this is true: feed it the plain eyes
-        "gazeaug.mirror_average": json.dumps(bool(meta.get("mirror_average", False))),
+        # the graph averages with the mirrored eyes itself when this is true (read from the module exported,
+        # not from meta, so the file says what the graph does): feed it the plain eyes
+        "gazeaug.mirror_average": json.dumps(bool(getattr(model, "mirror_average", False))),
         "gazeaug.normalization": json.dumps(norm if isinstance(norm, dict) else NormalizationSettings().as_dict()),
         "gazeaug.patch_size_wh": json.dumps([w, h]),
         "gazeaug.output": "gaze (N, 2) float32: (pitch, yaw) radians in the face-centre normalized frame",

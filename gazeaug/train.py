@@ -70,8 +70,6 @@ _LEGACY_SETTINGS: dict[str, Any] = {
     "input_mode": "rgb",
     "auto_samples": 250_000,  # not used by a run whose epochs were given, as every older run's were
 }
-#: Settings of how the finished model predicts, not of the training: a resumed run may change them.
-_PREDICTION_ONLY = ("mirror_average",)
 #: The augmentation fields an older gazeaug's checkpoint did not record, as that gazeaug augmented.
 _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0}
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.
@@ -437,7 +435,8 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
 
     Raises:
         GazeAugError: missing, unreadable, truncated, crafted or not a gazeaug model; an unknown
-            input preprocessing; non-finite weights; unusable ``normalization`` or ``patch_size_wh``.
+            input preprocessing; non-finite weights; unusable ``normalization`` or ``patch_size_wh``;
+            a ``prediction`` entry that is not ``{"mirror_average": bool}``.
     """
     p = Path(path)
     obj = _load_plain(p, "gazeaug model")
@@ -479,7 +478,7 @@ def _mirror_average(value: Any, path: Path) -> bool:
     flag = value.get("mirror_average", False) if isinstance(value, dict) else None
     if not isinstance(flag, bool):
         raise GazeAugError(
-            f"{path}: not a usable gazeaug model: 'prediction' must be {{'mirror_average': true or false}}, "
+            f"{path}: not a usable gazeaug model: 'prediction': expected {{'mirror_average': true or false}}, "
             f"got {value!r:.80}"
         )
     return flag
@@ -655,11 +654,10 @@ def _train(
         then_all = {**_LEGACY_SETTINGS, **then_settings}
         if isinstance(then_all.get("augment"), dict):  # an augment record from before a field existed
             then_all["augment"] = {**_LEGACY_AUGMENT, **then_all["augment"]}
-        now_all = asdict(s)
-        for k in _PREDICTION_ONLY:  # not the training's: the resumed run's model takes this run's
-            then_all.pop(k, None)
-            now_all.pop(k, None)
-        changed = _differences(then_all, now_all)
+        # a checkpoint from before mirror averaging trained as every run does (it changes only the
+        # prediction): it resumes with either setting; a recorded one must match, like every setting
+        then_all.setdefault("mirror_average", s.mirror_average)
+        changed = _differences(then_all, asdict(s))
         if changed:
             hint = ""
             if any(k not in then_settings for k in ("augment", "input_mode")):

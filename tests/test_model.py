@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import h5py
 import numpy as np
@@ -80,6 +81,20 @@ def test_training_learns_logs_and_resumes(tmp_path):
             resume=True,
             progress=False,
         )
+    # mirror averaging changes only the prediction, yet a recorded setting must match as every one does;
+    # a checkpoint from before the setting resumes with either
+    with pytest.raises(GazeAugError, match="mirror_average"):
+        train(
+            data, tmp_path / "r.pt", replace(s, mirror_average=False), val_subjects=["b"], resume=True, progress=False
+        )
+    ck = torch.load(tmp_path / "r.ckpt.pt", weights_only=True)
+    del ck["settings"]["mirror_average"]
+    torch.save(ck, tmp_path / "r.ckpt.pt")
+    for flag in (False, True):
+        log3 = train(
+            data, tmp_path / "r.pt", replace(s, mirror_average=flag), val_subjects=["b"], resume=True, progress=False
+        )
+        assert [r["epoch"] for r in log3] == [1, 2, 3, 4] and load_model(tmp_path / "r.pt")[1]["mirror_average"] is flag
 
 
 def test_bad_training_inputs(tmp_path):
@@ -234,6 +249,11 @@ def test_onnx_export_matches_pytorch(tmp_path):
     props = {p.key: p.value for p in onnx.load(str(tmp_path / "m.onnx")).metadata_props}
     assert props["gazeaug.input_mode"] == "rgb" and json.loads(props["gazeaug.patch_size_wh"]) == [60, 36]
     assert json.loads(props["gazeaug.mirror_average"]) is True  # the default; the graph holds the averaging
+    plain = TrainSettings(epochs=1, batch_size=16, mirror_average=False)
+    train(data, tmp_path / "p.pt", plain, progress=False)
+    assert main(["export", str(tmp_path / "p.pt"), "-o", str(tmp_path / "p.onnx")]) == 0
+    props = {p.key: p.value for p in onnx.load(str(tmp_path / "p.onnx")).metadata_props}
+    assert json.loads(props["gazeaug.mirror_average"]) is False
     assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
     train(data, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=16, input_mode="grey_equalized"), progress=False)
     assert main(["export", str(tmp_path / "g.pt"), "-o", str(tmp_path / "g.onnx")]) == 0
@@ -407,5 +427,5 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
     assert load_model(tmp_path / "old.pt")[1]["mirror_average"] is False
     obj["prediction"] = {"mirror_average": "yes"}
     torch.save(obj, tmp_path / "bad.pt")
-    with pytest.raises(GazeAugError, match="'prediction' must be"):
+    with pytest.raises(GazeAugError, match="'prediction': expected"):
         load_model(tmp_path / "bad.pt")
