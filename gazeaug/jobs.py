@@ -61,8 +61,10 @@ class JobSettings:
             gaze in the head and its photographed eyes; ``"redirect"``: the eyes are re-made as 3D
             eyeballs (:func:`gazeaug.augment.redirect_subject`) and turned to the rig's targets, head
             poses and targets drawn jointly from ``rig`` (:func:`gazeaug.augment.rig_looks`), so the
-            augmented set carries the application's eye-in-head gaze. Needs ``rig`` and MediaPipe's
-            478 landmarks.
+            augmented set carries the application's eye-in-head gaze. Each of a source's
+            ``per_sample`` samples draws eyes of its own (eyeball, iris, lid drop, kappa): on issue
+            13's benchmark, pitch r 0.43 -> 0.52 at the same error (docs/simulation.md). Needs
+            ``rig`` and MediaPipe's 478 landmarks.
     """
 
     kind: str = "augment"
@@ -243,17 +245,19 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
             asset = face_asset(provider.mesh(fit, sample))
             rng = np.random.default_rng([s.seed, idx])
             if s.eyes == "redirect":
-                subject = redirect_subject(fit, asset, rng, gaze_target_mm=target, gaze_vector=vector)
                 places, looked_at = rig_looks(asset, _STATE["rig"], s.per_sample, rng)
-                samples = render_redirected(
-                    subject,
-                    asset,
-                    places,
-                    looked_at,
-                    settings=s.normalization,
-                    threads=_STATE.get("threads", 0),
-                    rng=rng,
-                )
+                samples = []
+                for j in range(len(places)):  # eyes of its own per sample: more eyes, not more views of them
+                    subject = redirect_subject(fit, asset, rng, gaze_target_mm=target, gaze_vector=vector)
+                    samples += render_redirected(
+                        subject,
+                        asset,
+                        places[j : j + 1],
+                        looked_at[j : j + 1],
+                        settings=s.normalization,
+                        threads=_STATE.get("threads", 0),
+                        rng=rng,
+                    )
             else:
                 scene = _STATE["renderer"].scene(asset.render_mesh)
                 places = sampled_placements(asset, s.distribution.sample(s.per_sample, rng))

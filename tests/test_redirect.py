@@ -163,6 +163,31 @@ def test_cli_augment_redirect_eyes(tmp_path, capsys):
     assert head_minus_gaze.mean() > 8.0
 
 
+def test_augment_draws_eyes_per_sample(tmp_path, monkeypatch):
+    # every augmented sample of a source gets eyes of its own: K draws per source, each from the
+    # sample's generator in turn, so the eyes of one sample differ from the next's
+    import gazeaug.augment as aug
+    from gazeaug.datasets import open_dataset
+    from gazeaug.jobs import JobSettings, run_dataset
+
+    sim = tmp_path / "sim"
+    simulate([None], BUILTIN_RIGS["screen"], sim, per_face=2, progress=False)
+    drawn = []
+    real = aug.redirect_subject
+
+    def spy(*args, **kwargs):
+        subject = real(*args, **kwargs)
+        drawn.append(subject.draw)
+        return subject
+
+    monkeypatch.setattr(aug, "redirect_subject", spy)
+    rig = BUILTIN_RIGS["wheelchair"]
+    job = JobSettings(kind="augment", per_sample=3, distribution=rig.distribution(), rig=rig.as_dict(), eyes="redirect")
+    summary = run_dataset(open_dataset(sim), tmp_path / "a.h5", job, workers=1, progress=False)
+    assert summary["rows"] == 6 and len(drawn) == 6
+    assert len({(d.eyeball_radius_mm, d.lid_drop_mm) for d in drawn}) == 6
+
+
 def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
     assert main(["experiment", "-o", str(tmp_path / "xp"), "--redirect-eyes", "--per-face", "2", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
