@@ -2,7 +2,7 @@
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
 [--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]
-[--focal 650] [--distance 600] [--patch-size 60 36]``
+[--focal 650] [--distance 600] [--patch-size 60 36] [--no-antialias]``
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -107,8 +107,8 @@ def main() -> None:
 
 def run() -> None:
     """Simulate, run the experiment, print the summary and draw the worst samples."""
+    from gazeaug.cli import _add_normalization_options, _settings
     from gazeaug.experiment import ExperimentSettings, run_experiment
-    from gazeaug.normalize import NormalizationSettings
     from gazeaug.sampling import BUILTIN_RIGS
     from gazeaug.simulate import SIMULATOR_REVISION, SimSettings, simulate
     from gazeaug.train import TrainSettings
@@ -126,11 +126,7 @@ def run() -> None:
     ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--focal", type=float, default=None, help="normalized focal length f_n, px (default 650)")
-    ap.add_argument("--distance", type=float, default=None, help="normalized distance d_n, mm (default 600)")
-    ap.add_argument(
-        "--patch-size", type=int, nargs=2, default=None, metavar=("W", "H"), help="eye patch, px (default 60 36)"
-    )
+    _add_normalization_options(ap)  # --distance, --focal, --patch-size, --no-antialias, as gazeaug's commands
     ap.add_argument(
         "--redirect-eyes",
         action="store_true",
@@ -147,14 +143,7 @@ def run() -> None:
             ap.error(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
     if args.identities > args.per_face:
         ap.error(f"--identities: expected at most --per-face ({args.per_face}), got {args.identities}")
-    norm = {}
-    if args.focal is not None:
-        norm["focal_px"] = args.focal
-    if args.distance is not None:
-        norm["distance_mm"] = args.distance
-    if args.patch_size is not None:
-        norm["patch_size_wh"] = tuple(args.patch_size)
-    normalization = NormalizationSettings(**norm)  # before anything is simulated: GazeAugError exits 2
+    normalization = _settings(args)  # before anything is simulated: GazeAugError exits 2
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     out = args.output

@@ -22,7 +22,15 @@ from ._native import native_stderr_silenced
 from .outputs import umask_mode
 from .types import InputError
 
-__all__ = ["load_image_rgb", "to_rgb_uint8", "atomic_write", "save_image_rgb", "MIN_IMAGE_SIDE", "MAX_IMAGE_PIXELS"]
+__all__ = [
+    "load_image_rgb",
+    "check_input_file",
+    "to_rgb_uint8",
+    "atomic_write",
+    "save_image_rgb",
+    "MIN_IMAGE_SIDE",
+    "MAX_IMAGE_PIXELS",
+]
 
 #: Images smaller than this (pixels, either side) are refused: no landmark
 #: model finds a face in them.
@@ -120,13 +128,24 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     return to_rgb_uint8(img, name=str(p))
 
 
+def check_input_file(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a Path when it names an existing file (not read here); an InputError naming it otherwise.
+
+    Raises:
+        InputError: "PATH: no such file" or "PATH: not a file" (a folder, a device).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    if not p.is_file():
+        raise InputError(f"{p}: not a file")
+    return p
+
+
 def _read_bytes(p: Path) -> NDArray[np.uint8]:
     """The file's bytes, or an InputError naming it: missing, not a file, or unreadable (permissions, I/O error)."""
     try:
-        if not p.exists():
-            raise InputError(f"{p}: no such file")
-        if not p.is_file():
-            raise InputError(f"{p}: not a file")
+        check_input_file(p)
         return np.fromfile(str(p), dtype=np.uint8)
     except OSError as exc:
         raise InputError(f"{p}: cannot read the file ({exc.strerror or exc.__class__.__name__})") from exc

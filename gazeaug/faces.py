@@ -593,16 +593,12 @@ def video_face_sources(
     from facemesh._native import native_stderr_silenced
     from facemesh.camera import camera_for_image
     from facemesh.conventions import rotation_to_head_pitchyaw
-    from facemesh.io import MAX_IMAGE_PIXELS
+    from facemesh.io import MAX_IMAGE_PIXELS, check_input_file
 
     from .pipeline import fit_face
 
-    p = Path(path)
+    p = check_input_file(path)
     stem = stem or p.stem
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a file")
     if not os.access(p, os.R_OK):
         raise InputError(f"{p}: cannot read the file (permission denied)")
     with native_stderr_silenced():  # FFmpeg's lines on damaged files ("moov atom not found")

@@ -1013,14 +1013,17 @@ def simulate(
         A summary (counts, rig, settings).
 
     Raises:
+        InputError: a face path that is missing or not a file (before anything is written).
         OutputError: ``out_dir`` is not empty (without ``overwrite``), is a file, or another run writes it.
     """
     from facemesh.outputs import staged_folder
 
     s = settings or SimSettings()
+    from facemesh.io import check_input_file
+
     for f in faces:  # a missing photo is named before any folder or progress bar appears
-        if isinstance(f, (str, Path)) and not Path(f).is_file():
-            raise GazeAugError(f"{f}: no such file" if not Path(f).exists() else f"{f}: not a file")
+        if isinstance(f, (str, Path)):
+            check_input_file(f)
     faces = _expand_faces(faces, per_video=per_video, all_faces=all_faces)
     if per_face < 1:
         raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
