@@ -577,6 +577,26 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_distribution_options(xp)
 
+    rl = sub.add_parser(
+        "realism",
+        help="how far simulated eye patches are from real ones (a classifier two-sample test; docs/simulation.md)",
+    )
+    rl.add_argument(
+        "real",
+        type=Path,
+        help="real eye patches: an .npz with 'images' (N, H, W[, 3]) uint8, as MPIIGaze's, or a training set .h5",
+    )
+    rl.add_argument("simulated", type=Path, help="simulated eye patches: a training set .h5 (or an .npz as above)")
+    rl.add_argument("-o", "--output", type=Path, required=True, help="report folder (realism.json, realism.png)")
+    rl.add_argument(
+        "--patches",
+        type=_integer(40),
+        default=3000,
+        help="at most this many patches per set (default 3000, at least 40)",
+    )
+    rl.add_argument("--epochs", type=_positive_int, default=8, help="the classifier's passes (default 8)")
+    rl.add_argument("--seed", type=_seed, default=0, help="every random choice (default 0)")
+
     b = sub.add_parser("bench", help="benchmarks that print one JSON line")
     bsub = b.add_subparsers(dest="bench", required=True)
     br = bsub.add_parser("render", help="eye patches per second")
@@ -1063,6 +1083,24 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_realism(args: argparse.Namespace) -> int:
+    from facemesh.io import atomic_write
+
+    from .realism import RealismSettings, compare_patches, read_eye_patches, realism_sheet
+
+    settings = RealismSettings(max_patches=args.patches, epochs=args.epochs, seed=args.seed)
+    real, _ = read_eye_patches(args.real)
+    simulated, _ = read_eye_patches(args.simulated, max_rows=args.patches)
+    report = compare_patches(real, simulated, settings)
+    out = {"real": str(args.real), "simulated": str(args.simulated), **report.as_dict()}
+    args.output.mkdir(parents=True, exist_ok=True)
+    with atomic_write(args.output / "realism.json") as fh:
+        fh.write(json.dumps(out, indent=1).encode("utf-8"))
+    realism_sheet(real, report, args.output / "realism.png", title=args.simulated.name)
+    print(json.dumps({**out, "report": str(args.output / "realism.json")}))
+    return 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from .export import export_onnx
     from .train import load_model
@@ -1225,6 +1263,7 @@ _COMMANDS = {
     "evaluate": _cmd_evaluate,
     "predict": _cmd_predict,
     "export": _cmd_export,
+    "realism": _cmd_realism,
     "track": _cmd_track,
     "calibrate": _cmd_calibrate,
     "augment": _cmd_dataset,
@@ -1260,7 +1299,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_file(out, (".onnx",), what="ONNX file")
     elif cmd == "predict":
         check_picture_path(out)
-    elif cmd in ("evaluate", "experiment"):
+    elif cmd in ("evaluate", "experiment", "realism"):
         check_output_folder(out, what="report folder")
     elif cmd == "track":
         check_output_folder(out, what="output folder")

@@ -109,7 +109,11 @@ class JobSettings:
             if self.rig is not None:
                 d["rig"] = self.rig
             if self.eyes != "keep":  # recorded only when set, so earlier outputs' settings still match
+                from .augment import REDIRECT_SUPERSAMPLE
+
                 d["eyes"] = self.eyes
+                if REDIRECT_SUPERSAMPLE != 1:  # rays per pixel side; a .part made with another count is not resumed
+                    d["redirect_supersample"] = REDIRECT_SUPERSAMPLE
         return d
 
 

@@ -803,6 +803,7 @@ class SimSubject:
         *,
         antialias: bool = True,
         eye_blur_px: float = 0.0,
+        supersample: int = 1,
         threads: int = 0,
         rng: np.random.Generator | None = None,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
@@ -822,6 +823,9 @@ class SimSubject:
             eye_blur_px: Gaussian sigma, patch pixels, of a blur over the eyeballs' pixels (mixing in their
                 neighbours, the lids' edges): the softness of the texture around them, which went
                 through a camera (default 0: as rendered).
+            supersample: rays per pixel side (default 1: one ray through the pixel centre); s > 1
+                averages s x s rays per pixel (over the rays that hit), so the edges of the eye
+                opening, the iris and the pupil are antialiased as a camera's pixels average them.
             threads: Embree threads of the ray cast (0: all cores).
             rng: draws the light (see above); None: unlit.
 
@@ -840,18 +844,33 @@ class SimSubject:
         scene = self._posed_scene(
             head_rotation, head_translation_mm, target_mm, rng, face_shader=self._mip_shader, threads=threads
         )
-        rays = view_rays_packed([View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras])
+        ss = int(supersample)
+        if ss < 1:
+            raise GazeAugError(f"supersample: expected an integer >= 1, got {supersample!r}")
+        views = [View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras]
+        rays = view_rays_packed(views, ss)
         fragments = scene.caster.trace(rays)
-        hit = fragments.hit
-        out = fill_misses(shade(fragments, rays, scene.shaders), hit)
+        colour = shade(fragments, rays, scene.shaders)
+        hit_rays, eye_rays = fragments.hit, fragments.hit & ~fragments.of_mesh(0)
+        if ss == 1:
+            cover, eyes = hit_rays.astype(np.float64), eye_rays
+        else:  # each pixel: the mean of its s x s rays that hit something
+            p, hs, ws = hit_rays.shape
+
+            def pixels(a: NDArray[Any]) -> NDArray[Any]:
+                return a.reshape(p, hs // ss, ss, ws // ss, ss, *a.shape[3:]).mean(axis=(2, 4))
+
+            cover = pixels(hit_rays.astype(np.float64))
+            colour = pixels(colour * hit_rays[..., None]) / np.maximum(cover, 1e-9)[..., None]
+            eyes = pixels(eye_rays.astype(np.float64)) > 0
+        out = fill_misses(colour, cover > 0)
         if eye_blur_px > 0:
             import cv2
 
-            eyes = hit & ~fragments.of_mesh(0)
             for i in np.flatnonzero(eyes.reshape(len(eyes), -1).any(axis=1)):
                 soft = cv2.GaussianBlur(out[i], (0, 0), float(eye_blur_px))
                 out[i][eyes[i]] = soft[eyes[i]]
-        return out, hit.reshape(len(hit), -1).mean(axis=1).astype(np.float64)
+        return out, cover.reshape(len(cover), -1).mean(axis=1)
 
     def render(
         self,

@@ -100,6 +100,30 @@ def test_redirected_labels_follow_the_target_not_the_source(astronaut):
     assert min(rows["down"]) > max(rows["up"]) + 1.0
 
 
+def test_supersampled_eyes_soften_edges_and_keep_the_picture(astronaut):
+    # 2 x 2 rays per pixel, averaged: the same eyes and labels, edges (the lids' on the eyeball, the
+    # iris's, the pupil's) averaged over each pixel as a camera's pixel averages them, so less of the
+    # patch's energy lies at high spatial frequencies than with one ray through each pixel centre
+    from gazeaug.realism import grey_equalized, patch_statistics
+
+    fit, asset = astronaut
+    places, targets = rig_looks(asset, _still_rig((30.0, 100.0, -400.0)), 3, np.random.default_rng(0))
+    out = {}
+    for ss in (1, 2):
+        subject = redirect_subject(fit, asset, np.random.default_rng(5))
+        out[ss] = render_redirected(subject, asset, places, targets, supersample=ss)
+    one = np.stack([e.image for s in out[1] for e in (s.left, s.right)])
+    four = np.stack([e.image for s in out[2] for e in (s.left, s.right)])
+    for a, b in zip(out[1], out[2]):
+        np.testing.assert_allclose(a.left.gaze, b.left.gaze, atol=1e-12)
+        assert b.left.coverage == pytest.approx(a.left.coverage, abs=0.01)
+    assert np.abs(one.astype(float) - four).mean() < 4.0  # the same picture, edges aside
+    hf = [patch_statistics(grey_equalized(x)).high_frequency_share for x in (one, four)]
+    assert hf[1] < hf[0]
+    with pytest.raises(GazeAugError, match="supersample: expected an integer >= 1"):
+        render_redirected(redirect_subject(fit, asset, np.random.default_rng(5)), asset, places, targets, supersample=0)
+
+
 def test_redirected_eyes_draw_their_iris_colour(astronaut):
     # the simulator's draw: the photo's own iris for photo_iris_share of the subjects, else a palette
     # colour times a brightness in [0.8, 1.2] and a per-channel factor in [0.92, 1.08]
@@ -135,7 +159,8 @@ def test_redirected_eyes_draw_their_iris_colour(astronaut):
 def test_job_settings_redirect_needs_a_rig_and_is_recorded_only_when_set():
     wheel = BUILTIN_RIGS["wheelchair"].as_dict()
     assert "eyes" not in JobSettings(kind="augment", rig=wheel).as_dict()  # earlier outputs' settings still match
-    assert JobSettings(kind="augment", rig=wheel, eyes="redirect").as_dict()["eyes"] == "redirect"
+    recorded = JobSettings(kind="augment", rig=wheel, eyes="redirect").as_dict()
+    assert recorded["eyes"] == "redirect" and "redirect_supersample" not in recorded  # 1 ray per pixel, as before
     with pytest.raises(GazeAugError, match="need a rig"):
         JobSettings(kind="augment", eyes="redirect")
     with pytest.raises(GazeAugError, match="augmentation setting"):

@@ -124,12 +124,13 @@ class Renderer(Protocol):
         ...
 
 
-def view_rays_packed(views: Sequence[View]) -> NDArray[np.float32]:
-    """Rays of every pixel of every view, in the mesh's (source camera) frame, as (P, H, W, 6) float32.
+def view_rays_packed(views: Sequence[View], supersample: int = 1) -> NDArray[np.float32]:
+    """Rays of every pixel of every view, in the mesh's (source camera) frame, as (P, H s, W s, 6) float32.
 
     Each ray is ``(origin xyz, direction xyz)`` (:func:`facemesh.render.camera_rays`):
     the mesh-frame ray of pixel ``(u, v, 1)`` is ``A^T R^T S^-1 C_n^-1 (u, v, 1)``
-    from the camera centre ``A^T (0 - b)``.
+    from the camera centre ``A^T (0 - b)``. ``supersample`` s > 1 casts s x s rays per pixel
+    (sub-pixel centres, :func:`facemesh.conventions.homogeneous_pixel_centres`).
     """
     if not views:
         raise GazeAugError("no views to render")
@@ -139,7 +140,7 @@ def view_rays_packed(views: Sequence[View]) -> NDArray[np.float32]:
     a = np.stack([v.rotation for v in views])
     b = np.stack([v.translation_mm for v in views])
     m = np.einsum("pji,pjk->pik", a, pixel_to_ray_matrices([v.camera for v in views]))
-    return camera_rays(m, -np.einsum("pji,pj->pi", a, b), sizes.pop())  # origins A^T (0 - b)
+    return camera_rays(m, -np.einsum("pji,pj->pi", a, b), sizes.pop(), supersample)  # origins A^T (0 - b)
 
 
 def fill_misses(images: NDArray[Any], hit: NDArray[np.bool_]) -> NDArray[np.uint8]:
