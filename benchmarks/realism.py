@@ -18,7 +18,8 @@
 3. Compares each set with ``gaze/mpiigaze_eyes_unlabeled/test_eyes.npz``
    (:func:`gazeaug.realism.compare_patches`): classifier two-sample test (accuracy, AUC, and
    the real-vs-real floor), sharpness, high-frequency share, mean-patch difference. Prints one
-   JSON line per set and a table; pictures in ``OUT/report/realism_SET.png``, and
+   JSON line per set and a table (the held-out patches of a set with several people are whole
+   people: the simulated sets' subjects, the videos); pictures in ``OUT/report/realism_SET.png``, and
    ``OUT/report/people_and_redirected.png``: simulated people's left eyes (first column) beside
    the redirected eyes made from them.
 
@@ -174,7 +175,7 @@ def main() -> None:
     t_sets = time.perf_counter() - t0
 
     source_sheet(out / "people.h5", out / "redirect.h5", out / "report" / "people_and_redirected.png")
-    real, _ = read_eye_patches(real_npz)
+    real, real_who = read_eye_patches(real_npz)
     sets = {
         "real_video": video,
         "people": out / "people.h5",
@@ -184,8 +185,10 @@ def main() -> None:
     rows = {}
     for name, path in sets.items():
         t1 = time.perf_counter()
-        patches, _ = read_eye_patches(path)
-        rep = compare_patches(real, patches, RealismSettings(seed=args.seed))
+        patches, who = read_eye_patches(path)
+        rep = compare_patches(
+            real, patches, RealismSettings(seed=args.seed), real_groups=real_who, simulated_groups=who
+        )
         realism_sheet(real, rep, out / "report" / f"realism_{name}.png", title=name)
         rows[name] = {"set": name, **rep.as_dict(), "seconds": round(time.perf_counter() - t1, 1)}
         print(json.dumps(rows[name]), flush=True)
@@ -194,11 +197,12 @@ def main() -> None:
         f"\nsets made in {t_sets:.0f} s; MPIIGaze: sharpness {r0['sharpness']}, high-frequency share "
         f"{r0['high_frequency_share']}"
     )
-    print("| set | patches | accuracy (floor) | AUC | sharpness | high-freq. share | mean-patch RMS (floor) |")
+    print("| set | patches (floor) | accuracy (floor) | AUC | sharpness | high-freq. share | mean-patch RMS (floor) |")
     print("|---|---|---|---|---|---|---|")
     for name, r in rows.items():
         print(
-            f"| {name} | {r['patches_per_set']} | {r['accuracy']:.3f} ({r['floor_accuracy']:.3f}) | {r['auc']:.3f} | "
+            f"| {name} | {r['patches_per_set']} ({r['floor_patches_per_set']}) | "
+            f"{r['accuracy']:.3f} ({r['floor_accuracy']:.3f}) | {r['auc']:.3f} | "
             f"{r['simulated']['sharpness']:.2f} | {r['simulated']['high_frequency_share']:.4f} | "
             f"{r['mean_patch_rms']:.1f} ({r['mean_patch_rms_floor']:.1f}) |"
         )

@@ -381,8 +381,8 @@ def eye_softness_px(asset: FaceAsset, settings: NormalizationSettings) -> float:
 #: Rays per pixel side of redirected eye patches (:func:`render_redirected`; default 1: one ray
 #: through each pixel centre). 2 (2 x 2 rays per pixel, averaged) antialiases the edges of the eye
 #: opening, the iris and the pupil as a camera's pixels do: against MPIIGaze's patches
-#: (docs/simulation.md, "How real the eyes look") the share of high-frequency energy fell from 0.0264
-#: to 0.0238 (real: 0.0143). On issue 13's benchmark, whose simulated test people are ray cast with
+#: (docs/simulation.md, "How real the eyes look") the share of high-frequency energy fell from 0.0231
+#: to 0.0168 (real: 0.0068). On issue 13's benchmark, whose simulated test people are ray cast with
 #: one ray per pixel, it cost accuracy (docs/simulation.md), so it is not the default.
 REDIRECT_SUPERSAMPLE = 1
 

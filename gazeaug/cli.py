@@ -1089,14 +1089,14 @@ def _cmd_realism(args: argparse.Namespace) -> int:
     from .realism import RealismSettings, compare_patches, read_eye_patches, realism_sheet
 
     settings = RealismSettings(max_patches=args.patches, epochs=args.epochs, seed=args.seed)
-    real, _ = read_eye_patches(args.real)
-    simulated, _ = read_eye_patches(args.simulated, max_rows=args.patches)
-    report = compare_patches(real, simulated, settings)
-    out = {"real": str(args.real), "simulated": str(args.simulated), **report.as_dict()}
+    real, real_who = read_eye_patches(args.real, max_rows=args.patches, seed=args.seed)
+    simulated, sim_who = read_eye_patches(args.simulated, max_rows=args.patches, seed=args.seed)
+    report = compare_patches(real, simulated, settings, real_groups=real_who, simulated_groups=sim_who)
+    out = {"real_file": str(args.real), "simulated_file": str(args.simulated), **report.as_dict()}
     args.output.mkdir(parents=True, exist_ok=True)
-    with atomic_write(args.output / "realism.json") as fh:
-        fh.write(json.dumps(out, indent=1).encode("utf-8"))
     realism_sheet(real, report, args.output / "realism.png", title=args.simulated.name)
+    with atomic_write(args.output / "realism.json") as fh:  # last: a report with its JSON is complete
+        fh.write(json.dumps(out, indent=1).encode("utf-8"))
     print(json.dumps({**out, "report": str(args.output / "realism.json")}))
     return 0
 

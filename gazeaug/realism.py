@@ -98,8 +98,9 @@ class PatchStatistics:
     Attributes:
         count: patches measured.
         sharpness: mean gradient magnitude, grey levels per pixel (central differences).
-        high_frequency_share: the share of each patch's spectral energy (its mean removed) at
-            spatial frequencies above 0.25 cycles per pixel (half of Nyquist), averaged over patches.
+        high_frequency_share: the share of each patch's spectral energy (its mean removed, then a
+            Hann window over rows and columns so the borders add no edge) at spatial frequencies
+            above 0.25 cycles per pixel (half of Nyquist), averaged over patches.
         mean_patch: (H, W) float64 grey levels: the average patch, averaged with its mirror image.
     """
 
@@ -125,11 +126,14 @@ class RealismReport:
         accuracy: held-out accuracy of the classifier telling real from simulated, the higher-scoring
             half called simulated (0.5: it cannot; 1.0: every patch told apart).
         auc: its ROC AUC (probability that a simulated patch scores as more simulated than a real one).
-        floor_accuracy, floor_auc: the same test between two random halves of the real set.
-        patches_per_set: patches per set the classifier saw (training and held-out).
+        floor_accuracy, floor_auc: the same test between two disjoint random halves of the real set.
+        patches_per_set: patches drawn per set (training and held-out; whole people held out may
+            leave the classifier a few less, as many of each set).
+        floor_patches_per_set: patches in each half of the floor: as many as ``patches_per_set``
+            where the real set has twice that, else half the real set.
         mean_patch_rms: RMS difference between the two sets' mean patches, grey levels.
         mean_patch_rms_floor: the same between the two halves of the real set.
-        real, simulated: :class:`PatchStatistics` of each set (all patches given, up to ``max_patches``).
+        real, simulated: :class:`PatchStatistics` of the ``patches_per_set`` patches drawn from each set.
         most_synthetic, most_real: (k, H, W) uint8 equalized grey: held-out simulated patches the
             classifier scored as the most simulated and the most real.
         settings: the settings used.
@@ -140,6 +144,7 @@ class RealismReport:
     floor_accuracy: float
     floor_auc: float
     patches_per_set: int
+    floor_patches_per_set: int
     mean_patch_rms: float
     mean_patch_rms_floor: float
     real: PatchStatistics
@@ -156,6 +161,7 @@ class RealismReport:
             "floor_accuracy": round(self.floor_accuracy, 4),
             "floor_auc": round(self.floor_auc, 4),
             "patches_per_set": self.patches_per_set,
+            "floor_patches_per_set": self.floor_patches_per_set,
             "mean_patch_rms": round(self.mean_patch_rms, 3),
             "mean_patch_rms_floor": round(self.mean_patch_rms_floor, 3),
             "real": self.real.as_dict(),
@@ -191,7 +197,9 @@ def grey_equalized(patches: NDArray[Any]) -> NDArray[np.uint8]:
     return np.rint(out.numpy()).astype(np.uint8)
 
 
-def read_eye_patches(path: str | Path, max_rows: int | None = None) -> tuple[NDArray[np.uint8], NDArray[Any]]:
+def read_eye_patches(
+    path: str | Path, max_rows: int | None = None, seed: int = 0
+) -> tuple[NDArray[np.uint8], NDArray[Any]]:
     """Eye patches of a file, grey and equalized, with who each shows.
 
     Two formats:
@@ -203,8 +211,9 @@ def read_eye_patches(path: str | Path, max_rows: int | None = None) -> tuple[NDA
 
     Args:
         path: the file (``.npz``, ``.h5`` or ``.hdf5``).
-        max_rows: read at most this many rows of an ``.h5`` (its first rows; default all): a large
-            set is streamed, so only these rows are ever in memory.
+        max_rows: read at most this many rows of an ``.h5``, drawn at random (default all): a large
+            set is streamed, so only these rows are ever in memory (an ``.npz`` is read whole).
+        seed: the draw of those rows.
 
     Returns:
         patches: (N, H, W) uint8 equalized grey (:func:`grey_equalized`; an ``.h5`` gives 2 per row,
@@ -221,7 +230,9 @@ def read_eye_patches(path: str | Path, max_rows: int | None = None) -> tuple[NDA
         from .io_h5 import H5TrainingSet
 
         ts = H5TrainingSet(p, allow_empty=True)
-        n = len(ts) if max_rows is None else min(len(ts), max_rows)
+        if max_rows is not None and max_rows < len(ts):  # rows drawn at random, read in file order
+            ts.rows = np.sort(np.random.default_rng(seed).choice(ts.rows, max_rows, replace=False))
+        n = len(ts)
         left: list[NDArray[np.uint8]] = []
         right: list[NDArray[np.uint8]] = []
         who: list[NDArray[Any]] = []
@@ -243,16 +254,22 @@ def read_eye_patches(path: str | Path, max_rows: int | None = None) -> tuple[NDA
     import zipfile
 
     try:
-        with np.load(p, allow_pickle=False) as z:
+        z = np.load(p, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):  # an .npy (one array) under an .npz name
+            raise GazeAugError(f"{p}: expected an .npz archive of arrays, got a single array ({type(z).__name__})")
+        with z:
             if "images" not in z.files:
                 raise GazeAugError(f"{p}: expected an array 'images' of eye patches, got {sorted(z.files)}")
             images = z["images"]
-            subjects = z["subject_id"] if "subject_id" in z.files else np.zeros(len(images), dtype=np.int64)
+            subjects = z["subject_id"] if "subject_id" in z.files else None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise GazeAugError(f"{p}: not a readable .npz of eye patches ({exc})") from exc
-    if images.dtype != np.uint8 or images.ndim not in (3, 4) or (images.ndim == 4 and images.shape[-1] != 3):
+    ok = images.ndim in (3, 4) and (images.ndim == 3 or images.shape[-1] == 3) and min(images.shape[1:3]) > 0
+    if images.dtype != np.uint8 or not ok:
         found = f"{images.shape} {images.dtype}"
         raise GazeAugError(f"{p}: 'images': expected (N, H, W) or (N, H, W, 3) uint8, got {found}")
+    if subjects is None:
+        subjects = np.zeros(len(images), dtype=np.int64)
     if subjects.shape != (len(images),):
         raise GazeAugError(f"{p}: 'subject_id': expected shape ({len(images)},), got {subjects.shape}")
     return grey_equalized(images), subjects
@@ -266,7 +283,8 @@ def patch_statistics(patches: NDArray[np.uint8]) -> PatchStatistics:
     gy, gx = np.gradient(x, axis=(1, 2))
     sharp = float(np.hypot(gx, gy).mean())
     h, w = x.shape[1:]
-    power = np.abs(np.fft.fft2(x - x.mean(axis=(1, 2), keepdims=True))) ** 2
+    window = np.outer(np.hanning(h), np.hanning(w))  # no wrap-around edge at the patch's borders
+    power = np.abs(np.fft.fft2((x - x.mean(axis=(1, 2), keepdims=True)) * window)) ** 2
     fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij")
     high = np.hypot(fy, fx) > 0.25
     total = power.sum(axis=(1, 2))
@@ -307,23 +325,60 @@ def _classifier(torch: Any) -> Any:
     )
 
 
-def _two_sample_test(
-    a: NDArray[np.uint8], b: NDArray[np.uint8], s: RealismSettings, rng: np.random.Generator
-) -> tuple[float, float, NDArray[np.uint8], NDArray[np.float64]]:
-    """Train the CNN on part of ``a`` (label 0) and ``b`` (label 1) of equal size, score the held-out rest.
+def _held_out(n: int, groups: NDArray[Any] | None, share: float, rng: np.random.Generator) -> NDArray[np.bool_]:
+    """(n,) mask of the patches held out, about ``share`` of them.
 
-    Returns: accuracy, AUC, the held-out patches of ``b`` and their scores (probability of ``b``,
-    averaged over the patch and its mirror image).
+    Whole groups (people) drawn until that share when ``groups`` names two or more; else single patches.
+    """
+    want = max(1, int(round(n * share)))
+    mask = np.zeros(n, dtype=bool)
+    if groups is None or len(np.unique(groups)) < 2:
+        mask[rng.permutation(n)[:want]] = True
+        return mask
+    for g in rng.permutation(np.unique(groups)):
+        if mask.sum() >= want:
+            break
+        mask |= groups == g
+    if mask.all():  # every group held out: one goes back to training
+        mask &= groups != groups[0]
+    return mask
+
+
+def _balanced(idx: NDArray[np.int64], k: int, rng: np.random.Generator) -> NDArray[np.int64]:
+    """``k`` of ``idx`` drawn at random (all of them, in a random order, when there are only ``k``)."""
+    return rng.permutation(idx)[:k]
+
+
+def _two_sample_test(
+    a: NDArray[np.uint8],
+    b: NDArray[np.uint8],
+    s: RealismSettings,
+    rng: np.random.Generator,
+    groups_a: NDArray[Any] | None = None,
+    groups_b: NDArray[Any] | None = None,
+) -> tuple[float, float, NDArray[np.uint8], NDArray[np.float64]]:
+    """Train the CNN on part of ``a`` (label 0) and ``b`` (label 1), score the held-out rest.
+
+    The held-out part of each set is whole groups (people) when the set names two or more, so no
+    person is on both sides of the split; both classes are then cut to the same size, in training
+    and held out alike.
+
+    Returns: accuracy, AUC, the held-out patches of ``b`` and their scores (the classifier's logit
+    for ``b``, averaged over the patch and its mirror image).
     """
     from .models import import_torch
 
     torch = import_torch()
-    n = len(a)
-    k = max(1, int(round(n * s.holdout)))
-    ia, ib = rng.permutation(n), rng.permutation(len(b))
-    train_x = np.concatenate([a[ia[k:]], b[ib[k:]]])
-    train_y = np.concatenate([np.zeros(n - k), np.ones(len(b) - k)]).astype(np.float32)
-    test_x = np.concatenate([a[ia[:k]], b[ib[:k]]])
+    held_a, held_b = _held_out(len(a), groups_a, s.holdout, rng), _held_out(len(b), groups_b, s.holdout, rng)
+    k = int(min(held_a.sum(), held_b.sum()))
+    t = int(min((~held_a).sum(), (~held_b).sum()))
+    if k < 1 or t < 1:
+        raise GazeAugError(f"too few patches to split into training and held-out parts (held out {k}, training {t})")
+    ta, tb = _balanced(np.flatnonzero(~held_a), t, rng), _balanced(np.flatnonzero(~held_b), t, rng)
+    va, vb = _balanced(np.flatnonzero(held_a), k, rng), _balanced(np.flatnonzero(held_b), k, rng)
+    train_x = np.concatenate([a[ta], b[tb]])
+    train_y = np.concatenate([np.zeros(t), np.ones(t)]).astype(np.float32)
+    test_x = np.concatenate([a[va], b[vb]])
     test_y = np.concatenate([np.zeros(k, dtype=np.int64), np.ones(k, dtype=np.int64)])
 
     def tensor(x: NDArray[np.uint8]) -> Any:
@@ -349,30 +404,38 @@ def _two_sample_test(
     net.eval()
     with torch.no_grad():
         xv = tensor(test_x)
-        p = 0.5 * (torch.sigmoid(net(xv)) + torch.sigmoid(net(xv.flip(-1))))
-    scores = p.numpy().astype(np.float64)
-    # both classes are k patches: the k highest scores are called the second set's (ties broken by
-    # position), so a classifier whose scores are shifted as a whole (BatchNorm's running statistics
+        logit = 0.5 * (net(xv) + net(xv.flip(-1)))  # logits, not probabilities: these rarely tie
+    scores = logit.numpy().astype(np.float64)
+    # both classes are k patches: the k highest scores are called the second set's (ties in a random
+    # order), so a classifier whose scores are shifted as a whole (BatchNorm's running statistics
     # after few steps) is judged by its ranking, as the AUC judges it
     called = np.zeros(2 * k, dtype=bool)
-    called[np.argsort(-scores, kind="stable")[:k]] = True
+    called[np.lexsort((rng.permutation(2 * k), -scores))[:k]] = True
     acc = float((called == (test_y == 1)).mean())
     return acc, _auc(scores, test_y), test_x[k:], scores[k:]
 
 
 def compare_patches(
-    real: NDArray[np.uint8], simulated: NDArray[np.uint8], settings: RealismSettings | None = None
+    real: NDArray[np.uint8],
+    simulated: NDArray[np.uint8],
+    settings: RealismSettings | None = None,
+    *,
+    real_groups: NDArray[Any] | None = None,
+    simulated_groups: NDArray[Any] | None = None,
 ) -> RealismReport:
     """The realism measure (module docstring) between two sets of equalized grey eye patches.
 
     Args:
-        real: (N, H, W) uint8, as :func:`read_eye_patches` or :func:`grey_equalized` give.
+        real: (N, H, W) uint8, as :func:`read_eye_patches` or :func:`grey_equalized` give; H, W >= 4.
         simulated: (M, H, W) uint8, the same H and W.
         settings: :class:`RealismSettings` (defaults when None).
+        real_groups: (N,): who each real patch shows (``read_eye_patches``' subjects), or None. With
+            two or more people in a set, its held-out part is whole people.
+        simulated_groups: (M,): the same for the simulated patches.
 
     Raises:
-        GazeAugError: patches of different sizes, or fewer than :data:`MIN_PATCHES` in either set
-        (the floor needs twice that of the real set).
+        GazeAugError: patches of different sizes or smaller than 4 x 4, groups of the wrong length, or
+        fewer than :data:`MIN_PATCHES` in either set (the floor needs twice that of the real set).
     """
     s = settings or RealismSettings()
     real, simulated = np.asarray(real), np.asarray(simulated)
@@ -385,22 +448,35 @@ def compare_patches(
             f"patch sizes differ: real {w0}x{h0}, simulated {w1}x{h1} "
             f"(make the simulated set with --patch-size {w0} {h0})"
         )
+    if min(real.shape[1:]) < 4:
+        raise GazeAugError(f"patches: expected at least 4 x 4 pixels, got {real.shape[2]}x{real.shape[1]}")
     if len(real) < 2 * MIN_PATCHES or len(simulated) < MIN_PATCHES:
         raise GazeAugError(
             f"too few patches: expected at least {2 * MIN_PATCHES} real and {MIN_PATCHES} simulated, "
             f"got {len(real)} and {len(simulated)}"
         )
+    gr = None if real_groups is None else np.asarray(real_groups)
+    gs = None if simulated_groups is None else np.asarray(simulated_groups)
+    for name, g, x in (("real_groups", gr, real), ("simulated_groups", gs, simulated)):
+        if g is not None and g.shape != (len(x),):
+            raise GazeAugError(f"{name}: expected shape ({len(x)},), got {g.shape}")
     rng = np.random.default_rng(s.seed)
     n = min(len(real), len(simulated), s.max_patches)
-    r = real[rng.choice(len(real), n, replace=False)]
-    m = simulated[rng.choice(len(simulated), n, replace=False)]
-    acc, auc, held, scores = _two_sample_test(r, m, s, rng)
-    half = rng.permutation(min(len(real), 2 * s.max_patches))
-    h = len(half) // 2
-    r1, r2 = real[half[:h]], real[half[h : 2 * h]]
-    facc, fauc, _, _ = _two_sample_test(r1, r2, s, rng)
+    ir, im = rng.choice(len(real), n, replace=False), rng.choice(len(simulated), n, replace=False)
+    r, m = real[ir], simulated[im]
+    acc, auc, held, scores = _two_sample_test(
+        r, m, s, rng, None if gr is None else gr[ir], None if gs is None else gs[im]
+    )
+    # the floor: two disjoint random halves of the real set, each as large as the test's sets where
+    # the real set allows (at most half of it each)
+    h = min(n, len(real) // 2)
+    both = rng.choice(len(real), 2 * h, replace=False)
+    i1, i2 = both[:h], both[h:]
+    facc, fauc, _, _ = _two_sample_test(
+        real[i1], real[i2], s, rng, None if gr is None else gr[i1], None if gr is None else gr[i2]
+    )
     st_r, st_m = patch_statistics(r), patch_statistics(m)
-    st_1, st_2 = patch_statistics(r1), patch_statistics(r2)
+    st_1, st_2 = patch_statistics(real[i1]), patch_statistics(real[i2])
     order = np.argsort(-scores, kind="stable")
     k = min(s.examples, len(order) // 2)
     return RealismReport(
@@ -409,6 +485,7 @@ def compare_patches(
         floor_accuracy=facc,
         floor_auc=fauc,
         patches_per_set=n,
+        floor_patches_per_set=h,
         mean_patch_rms=float(np.sqrt(np.mean((st_r.mean_patch - st_m.mean_patch) ** 2))),
         mean_patch_rms_floor=float(np.sqrt(np.mean((st_1.mean_patch - st_2.mean_patch) ** 2))),
         real=st_r,

@@ -831,7 +831,7 @@ class SimSubject:
 
         Returns:
             (C, H, W, 3) uint8 RGB patches (misses inpainted) and (C,) float64 coverage: the share of
-            each patch's pixels that hit the head (face, rings, eyes).
+            each patch's rays that hit the head (face, rings, eyes): of its pixels when ``supersample`` is 1.
         """
         from .render.base import View, fill_misses, view_rays_packed
         from .render.shaders import MipTextureShader

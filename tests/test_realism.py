@@ -36,7 +36,8 @@ def test_statistics_by_hand():
     ramp = np.tile(np.arange(w, dtype=np.uint8) * 2, (h, 1))  # 2 grey levels per column: gradient 2 everywhere
     assert patch_statistics(ramp[None]).sharpness == pytest.approx(2.0)
     checker = ((np.indices((h, w)).sum(0) % 2) * 200).astype(np.uint8)  # all energy at (0.5, 0.5) cycles/px
-    assert patch_statistics(checker[None]).high_frequency_share == pytest.approx(1.0)
+    # (the Hann window spreads it by a couple of frequency bins: still far above 0.25)
+    assert patch_statistics(checker[None]).high_frequency_share == pytest.approx(1.0, abs=1e-3)
     slow = (100 + 50 * np.cos(2 * np.pi * np.arange(w) / w)).astype(np.uint8)  # 1/60 cycle/px (plus rounding)
     assert patch_statistics(np.tile(slow, (h, 1))[None]).high_frequency_share < 0.01
     flat = np.full((1, h, w), 7, np.uint8)
@@ -81,12 +82,38 @@ def test_two_sample_test_tells_what_differs_and_not_what_does_not(tmp_path):
     assert rep_blur.simulated.sharpness < rep_blur.real.sharpness
     assert rep_blur.simulated.high_frequency_share < rep_blur.real.high_frequency_share
     assert rep_blur.patches_per_set == 300
+    assert rep_blur.floor_patches_per_set == 150  # two disjoint halves of the 300 real patches
     assert rep_blur.most_synthetic.shape == (4, 36, 60) and rep_blur.most_real.shape == (4, 36, 60)
     # the same seed, the same figures
     assert compare_patches(real, blurred, FAST).as_dict() == rep_blur.as_dict()
     png = tmp_path / "sheet.png"
     realism_sheet(real, rep_blur, png, title="blurred", count=4)
     assert cv2.imread(str(png)) is not None
+
+
+def test_ties_count_as_chance_not_as_a_verdict():
+    # two identical constant sets: every held-out patch gets the same score; the test must read as
+    # chance (AUC exactly 0.5, accuracy near 0.5), not call every tied real patch simulated
+    flat = np.full((120, 36, 60), 90, np.uint8)
+    rep = compare_patches(flat, flat.copy(), FAST)
+    assert rep.auc == pytest.approx(0.5)
+    assert 0.25 < rep.accuracy < 0.75
+
+
+def test_held_out_part_is_whole_people():
+    from gazeaug.realism import _held_out
+
+    groups = np.repeat(np.arange(10), 12)  # 10 people x 12 patches
+    mask = _held_out(len(groups), groups, 0.3, np.random.default_rng(0))
+    held = set(groups[mask].tolist())
+    assert not held & set(groups[~mask].tolist())  # nobody on both sides
+    assert len(held) == 3  # 36 patches = 30 % of 120, reached with the third person
+    one = _held_out(50, np.zeros(50), 0.3, np.random.default_rng(0))  # one person: single patches
+    assert one.sum() == 15
+    # the classifier test with people: the simulated set's held-out patches are other people's
+    rng = np.random.default_rng(6)
+    rep = compare_patches(_eyes(rng, 200, 0), _eyes(rng, 200, 2.0), FAST, simulated_groups=np.repeat(np.arange(10), 20))
+    assert rep.auc > 0.95
 
 
 def test_bad_inputs_are_named():
@@ -100,6 +127,10 @@ def test_bad_inputs_are_named():
         compare_patches(real.astype(np.float32), real, FAST)
     with pytest.raises(GazeAugError, match="holdout"):
         RealismSettings(holdout=1.5)
+    with pytest.raises(GazeAugError, match="at least 4 x 4 pixels, got 3x3"):
+        compare_patches(np.zeros((100, 3, 3), np.uint8), np.zeros((100, 3, 3), np.uint8), FAST)
+    with pytest.raises(GazeAugError, match=r"simulated_groups: expected shape \(100,\)"):
+        compare_patches(real, real, FAST, simulated_groups=np.zeros(7))
 
 
 def test_read_eye_patches_npz_and_h5(tmp_path):
@@ -115,6 +146,9 @@ def test_read_eye_patches_npz_and_h5(tmp_path):
     assert patches.shape == (20, 36, 60) and len(who) == 20  # left eyes, then right eyes
     patches, who = read_eye_patches(h5, max_rows=3)
     assert patches.shape == (6, 36, 60)
+    # the 3 rows are drawn at random: other seeds draw other rows
+    drawn = {read_eye_patches(h5, max_rows=3, seed=k)[0][:3].tobytes() for k in range(5)}
+    assert len(drawn) > 1
 
 
 def test_read_eye_patches_refuses_bad_files_without_running_code(tmp_path):
@@ -130,6 +164,16 @@ def test_read_eye_patches_refuses_bad_files_without_running_code(tmp_path):
     np.savez(floats, images=np.zeros((2, 36, 60), np.float32))
     with pytest.raises(GazeAugError, match="uint8, got"):
         read_eye_patches(floats)
+    single = tmp_path / "single.npz"
+    with open(single, "wb") as fh:
+        np.save(fh, np.zeros((2, 36, 60), np.uint8))  # an .npy under an .npz name
+    with pytest.raises(GazeAugError, match="expected an .npz archive of arrays, got a single array"):
+        read_eye_patches(single)
+    for bad in (np.zeros((), np.uint8), np.zeros((100, 0, 60), np.uint8)):
+        odd = tmp_path / "odd.npz"
+        np.savez(odd, images=bad)
+        with pytest.raises(GazeAugError, match="'images': expected"):
+            read_eye_patches(odd)
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip")
     with pytest.raises(GazeAugError, match="not a readable .npz"):
@@ -171,7 +215,9 @@ def test_cli_realism(tmp_path, capsys):
     assert main(["realism", str(real), str(sim), "-o", str(out), "--epochs", "1", "--patches", "80"]) == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line["patches_per_set"] == 80 and 0.0 <= line["auc"] <= 1.0
-    assert json.loads((out / "realism.json").read_text())["auc"] == line["auc"]
+    saved = json.loads((out / "realism.json").read_text())
+    assert saved["auc"] == line["auc"] and saved["real_file"] == str(real) and saved["simulated_file"] == str(sim)
+    assert saved["real"]["count"] == saved["simulated"]["count"] == 80
     assert (out / "realism.png").stat().st_size > 0
     small = tmp_path / "small.npz"
     np.savez(small, images=np.zeros((100, 24, 40), np.uint8))
@@ -182,3 +228,5 @@ def test_cli_realism(tmp_path, capsys):
     assert main(["realism", str(tmp_path / "nope.npz"), str(sim), "-o", str(tmp_path / "r3")]) == 2
     assert "no such file" in capsys.readouterr().err
     assert main(["realism", str(real), str(sim), "-o", str(tmp_path / "r4"), "--patches", "5"]) == 2
+    assert "--patches: expected an integer >= 40, got 5" in capsys.readouterr().err
+    assert not (tmp_path / "r4").exists()
