@@ -262,6 +262,8 @@ def read_eye_patches(
                 raise GazeAugError(f"{p}: expected an array 'images' of eye patches, got {sorted(z.files)}")
             images = z["images"]
             subjects = z["subject_id"] if "subject_id" in z.files else None
+    except GazeAugError:
+        raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise GazeAugError(f"{p}: not a readable .npz of eye patches ({exc})") from exc
     ok = images.ndim in (3, 4) and (images.ndim == 3 or images.shape[-1] == 3) and min(images.shape[1:3]) > 0
