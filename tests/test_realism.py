@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from helpers import synthetic_h5
 
 from gazeaug.errors import GazeAugError
 from gazeaug.realism import (
@@ -16,7 +17,6 @@ from gazeaug.realism import (
     read_eye_patches,
     realism_sheet,
 )
-from tests.helpers import synthetic_h5
 
 FAST = RealismSettings(epochs=3, batch_size=64, examples=4)
 
