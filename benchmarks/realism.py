@@ -102,25 +102,22 @@ def video_patches(videos: list[Path], frames: int, out: Path, max_head_deg: floa
 def source_sheet(people_h5: Path, redirect_h5: Path, out_png: Path, sources: int = 8) -> None:
     """Left eyes of ``sources`` simulated people (first column) beside their redirected eyes (as many as K), RGB."""
     import cv2
-    import h5py
     import numpy as np
 
-    from facemesh.io import atomic_write
+    from facemesh.io import save_image_rgb
+    from gazeaug.io_h5 import read_h5
 
-    with h5py.File(people_h5, "r") as p, h5py.File(redirect_h5, "r") as r:
-        pi, ri = p["source_index"][()], r["source_index"][()]
-        rows = []
-        for s in np.unique(pi)[np.linspace(0, len(np.unique(pi)) - 1, sources).astype(int)]:
-            own = p["left_eye"][int(np.flatnonzero(pi == s)[0])]
-            redirected = [r["left_eye"][int(j)] for j in np.flatnonzero(ri == s)]
-            gap = np.full((own.shape[0], 6, 3), 255, np.uint8)
-            rows.append(np.hstack([own, gap, *redirected]))
+    p, r = (read_h5(f, ["left_eye", "source_index"]) for f in (people_h5, redirect_h5))
+    pi, ri = p["source_index"], r["source_index"]
+    rows = []
+    for s in np.unique(pi)[np.linspace(0, len(np.unique(pi)) - 1, sources).astype(int)]:
+        own = p["left_eye"][int(np.flatnonzero(pi == s)[0])]
+        redirected = list(r["left_eye"][ri == s])
+        gap = np.full((own.shape[0], 6, 3), 255, np.uint8)
+        rows.append(np.hstack([own, gap, *redirected]))
     width = max(row.shape[1] for row in rows)
     sheet = np.vstack([np.pad(row, ((0, 0), (0, width - row.shape[1]), (0, 0)), constant_values=255) for row in rows])
-    sheet = cv2.resize(sheet, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
-    ok, enc = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    with atomic_write(out_png) as fh:
-        fh.write(enc.tobytes())
+    save_image_rgb(out_png, cv2.resize(sheet, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST))
 
 
 def main() -> None:

@@ -232,19 +232,13 @@ def read_eye_patches(
         ts = H5TrainingSet(p, allow_empty=True)
         if max_rows is not None and max_rows < len(ts):  # rows drawn at random, read in file order
             ts.rows = np.sort(np.random.default_rng(seed).choice(ts.rows, max_rows, replace=False))
-        n = len(ts)
         left: list[NDArray[np.uint8]] = []
         right: list[NDArray[np.uint8]] = []
         who: list[NDArray[Any]] = []
-        got = 0
-        for batch in ts.batches(1024) if n else ():
-            take = min(len(batch["left_eye"]), n - got)
-            left.append(grey_equalized(batch["left_eye"][:take]))
-            right.append(grey_equalized(batch["right_eye"][:take]))
-            who.append(batch["subject"][:take])
-            got += take
-            if got >= n:
-                break
+        for batch in ts.batches(1024):  # the rows in use, and only those
+            left.append(grey_equalized(batch["left_eye"]))
+            right.append(grey_equalized(batch["right_eye"]))
+            who.append(batch["subject"])
         if not left:
             raise GazeAugError(f"{p}: expected eye patches, got a training set of no rows")
         subjects = np.concatenate(who)

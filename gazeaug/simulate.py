@@ -1035,11 +1035,10 @@ def simulate(
         InputError: a face path that is missing or not a file (before anything is written).
         OutputError: ``out_dir`` is not empty (without ``overwrite``), is a file, or another run writes it.
     """
+    from facemesh.io import check_input_file
     from facemesh.outputs import staged_folder
 
     s = settings or SimSettings()
-    from facemesh.io import check_input_file
-
     for f in faces:  # a missing photo is named before any folder or progress bar appears
         if isinstance(f, (str, Path)):
             check_input_file(f)
