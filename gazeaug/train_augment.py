@@ -7,7 +7,7 @@ training patch, per sample and at random, in ways that keep the gaze label:
 ==============  =========================================================  ==============
 what            how (per patch, drawn uniformly unless said)               default
 ==============  =========================================================  ==============
-translation     whole pixels in ``[-shift_px, shift_px]`` per axis,         2 px
+translation     whole pixels in ``[-shift_px, shift_px]`` per axis,         10 px
                 borders reflected (as a pad-reflect and a random crop)
 blur            Gaussian, sigma in ``[0, blur_sigma]`` px; applied with     1.2 px
                 the translation as one separable, shifted kernel
@@ -79,7 +79,8 @@ class TrainAugment:
 
     Attributes:
         enabled: augment at all (default True); False trains on the patches as they are.
-        shift_px: largest translation, pixels per axis, an integer in [0, 16] (default 2).
+        shift_px: largest translation, pixels per axis, an integer in [0, 16] (default 10: the framing
+            of test-time normalization, from detected landmarks, moves an eye by about 4 px; docs/model.md).
         blur_sigma: largest Gaussian blur sigma, pixels, in [0, 3] (default 1.2).
         colour: per-channel gain spread, in [0, 1) (default 0.08: gains 0.92 to 1.08).
         contrast: contrast factor spread about the patch mean, in [0, 1) (default 0.25).
@@ -95,7 +96,7 @@ class TrainAugment:
     """
 
     enabled: bool = True
-    shift_px: int = 2
+    shift_px: int = 10
     blur_sigma: float = 1.2
     colour: float = 0.08
     contrast: float = 0.25

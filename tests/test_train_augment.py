@@ -178,6 +178,20 @@ def test_mirror_swaps_flips_and_negates_the_yaws():
     assert TrainAugment().mirror == 0.0  # off by default (it bought nothing measured; docs/model.md)
 
 
+def test_default_translations_span_the_framing_error_of_test_time_normalization():
+    # test-time framing (detected landmarks, PnP) moves an eye by 2.2 px median, 5.6 px at the 95th
+    # percentile on issue 13's wheelchair test (docs/model.md): the default translations reach +-10 px
+    plain = {k: 0 for k in ("blur_sigma", "colour", "contrast", "brightness", "gamma", "noise")}
+    dot = torch.zeros(400, 36, 60, 3, dtype=torch.uint8)
+    dot[:, 18, 30] = 255  # one bright pixel, far enough from the borders for any shift up to 16
+    out = augment_eyes(dot, TrainAugment(**plain), augment_generator(3, 0))[:, 0]  # (N, H, W)
+    flat = out.reshape(len(out), -1).argmax(dim=1)
+    dy, dx = flat // 60 - 18, flat % 60 - 30
+    assert int(dy.abs().max()) == 10 and int(dx.abs().max()) == 10  # uniform whole pixels in [-10, 10]
+    assert len(set(dy.tolist())) == 21 and len(set(dx.tolist())) == 21
+    assert torch.all(out.amax(dim=(1, 2)) == 255)  # a pure translation: the dot kept whole
+
+
 def test_the_logged_training_error_is_against_the_labels_the_model_was_given(tmp_path):
     # every gaze (0, +0.4) rad and every sample mirrored: the model is taught (0, -0.4), learns that
     # constant within a few epochs, and the log must compare with what it was taught (a few degrees),
