@@ -72,6 +72,11 @@ _LEGACY_SETTINGS: dict[str, Any] = {
 }
 #: The augmentation fields an older gazeaug's checkpoint did not record, as that gazeaug augmented.
 _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0}
+#: Augmentation defaults that changed, as (field, the default before): a checkpoint made under the
+#: older default resumes with it where the run being resumed leaves the field at today's default,
+#: so a run started before the change finishes as it began (``gazeaug train --resume`` has no
+#: option for each strength). ``shift_px`` was 2 before 2026-11-24 (docs/model.md).
+_OLDER_AUGMENT_DEFAULTS: tuple[tuple[str, Any], ...] = (("shift_px", 2),)
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.
 AUTO_MIN_EPOCHS = 10
 #: The most epochs :meth:`TrainSettings.fitted` gives: a set of under 125 rows (250k / 2000) would
@@ -654,6 +659,15 @@ def _train(
         then_all = {**_LEGACY_SETTINGS, **then_settings}
         if isinstance(then_all.get("augment"), dict):  # an augment record from before a field existed
             then_all["augment"] = {**_LEGACY_AUGMENT, **then_all["augment"]}
+        then_aug, now_default = then_all.get("augment"), TrainAugment()
+        if isinstance(then_aug, dict):
+            older = {
+                k: v
+                for k, v in _OLDER_AUGMENT_DEFAULTS
+                if then_aug.get(k) == v and getattr(s.augment, k) == getattr(now_default, k)
+            }
+            if older:  # begun under an older default: it goes on with it
+                s = replace(s, augment=replace(s.augment, **older))
         # a checkpoint from before mirror averaging trained as every run does (it changes only the
         # prediction): it resumes with either setting; a recorded one must match, like every setting
         then_all.setdefault("mirror_average", s.mirror_average)

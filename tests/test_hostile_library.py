@@ -152,6 +152,37 @@ def test_resume_refuses_a_checkpoint_without_a_fingerprint(tmp_path):
         train(h5, tmp_path / "m.pt", s, resume=True, progress=False)
 
 
+@torch_needed
+def test_a_run_begun_under_the_older_translation_default_resumes_with_it(tmp_path):
+    # shift_px was 2 by default before 2026-11-24; `gazeaug train --resume` has no option for it, so a
+    # run interrupted then goes on with its own 2, recorded in the model; another value is refused
+    import torch
+
+    import gazeaug.train as tr
+    from gazeaug.train import TrainSettings, train
+    from gazeaug.train_augment import TrainAugment
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
+    out = tmp_path / "m.pt"
+    real_save = tr._save
+
+    def save_then_die(obj, path):
+        real_save(obj, path)
+        raise KeyboardInterrupt
+
+    tr._save = save_then_die
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            train(h5, out, TrainSettings(epochs=2, batch_size=16, augment=TrainAugment(shift_px=2)), progress=False)
+    finally:
+        tr._save = real_save
+    with pytest.raises(GazeAugError, match=r"other settings .*'shift_px': 2.* then, .*'shift_px': 4"):
+        train(h5, out, TrainSettings(epochs=2, batch_size=16, augment=TrainAugment(shift_px=4)), resume=True)
+    log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
+    assert [r["epoch"] for r in log] == [1, 2]
+    assert torch.load(out, weights_only=True)["train_settings"]["augment"]["shift_px"] == 2
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # B. damaged model files
 
