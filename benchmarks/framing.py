@@ -37,7 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> int:
-    from gazeaug.io_h5 import read_h5
+    from gazeaug.errors import GazeAugError
+    from gazeaug.io_h5 import H5TrainingSet
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("simulated", type=Path, help="a gazeaug simulate output folder")
@@ -48,8 +49,16 @@ def main() -> int:
         print(f"{args.simulated}: no simulation.jsonl (expected a gazeaug simulate output folder)", file=sys.stderr)
         return 2
     records = [json.loads(line) for line in (args.simulated / "simulation.jsonl").read_text().splitlines() if line]
-    d = read_h5(args.normalized, ["R_norm_left", "R_norm_right", "source_index", "subject"])
-    subjects = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in d["subject"]])
+    try:
+        ts = H5TrainingSet(args.normalized)
+        d = ts.read(["R_norm_left", "R_norm_right", "source_index"])
+    except GazeAugError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    if len(d["source_index"]) and int(d["source_index"].max()) >= len(records):
+        print(f"{args.normalized}: rows of other images than {args.simulated}'s {len(records)}", file=sys.stderr)
+        return 2
+    subjects = ts.subjects[ts.rows]
     offsets = []  # (N, 2 eyes, 2) px
     for i, k in enumerate(d["source_index"]):
         rec = records[int(k)]
