@@ -1,27 +1,38 @@
 """How far test-time normalization's framing moves an eye in its patch, on simulated people.
 
-``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal 650]``
+``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal 650] [--reference contour|eyeball] [--model M.pt]``
 
-``SIMULATED_DIR`` is a ``gazeaug simulate`` output (its ``simulation.jsonl``
-holds each image's true eyeball centres, mm, camera frame) and ``NORMALIZED.h5``
-the same images through ``gazeaug normalize-dataset`` (one row per image, in
-the simulation's order: ``source_index``), which placed each eye's normalized
-camera from the landmarks MediaPipe detected and the head pose PnP found.
-Redirected training eyes are framed from the rendered pose itself, exactly;
-a test image's eye lands wherever detection puts it.
+``SIMULATED_DIR`` is a ``gazeaug simulate`` output (``simulation.jsonl`` holds
+each image's true eyeball centres, mm, camera frame, its head rotation and
+the subject's drawn eyeball radius; ``simulation.json`` the settings) and
+``NORMALIZED.h5`` the same images through ``gazeaug normalize-dataset`` (one
+row per image, in the simulation's order: ``source_index``), which placed each
+eye's normalized camera from the landmarks MediaPipe detected and the head
+pose PnP found. Redirected training eyes are framed from the rendered pose
+itself, exactly; a test image's eye lands wherever detection puts it.
 
-For every image and eye, the true eyeball centre is projected through the
+For every image and eye, a true point of the eye is projected through the
 row's normalizing rotation (``R_norm_left``/``R_norm_right``) onto the patch
-plane at the normalized focal length ``--focal``: where the eye's centre sits
-relative to the patch centre, px. The eyeball centre lies behind the eye
-corners that normalization aims at, by an amount that is the subject's own, so
-each subject's median is removed; what is left is the frame-to-frame
-framing error (detection and PnP), to about a pixel (the same depth offset
-seen from head poses a few degrees apart).
+plane at the normalized focal length ``--focal``: where it sits relative to
+the patch centre, px (x right, y down). The point (``--reference``) is the
+**eye contour's centre** (default: what normalization aims at, the eyeball
+centre moved forward by :func:`gazeaug.simulate.eyeball_depth_mm` along the
+head's -z) or the **eyeball centre** (the first version of this script; it
+also moves with the head's rotation, about a pixel over a few degrees, since
+it lies 10.5 mm behind the contour). Normalization aims at the eye corners of
+a generic face, not at this subject's contour, so each subject's median is
+removed; what is left is the image-to-image framing error (detection, PnP).
+
+With ``--model``, the model is also evaluated on the patches re-framed by
+these offsets (a sub-pixel translation, edges replicated): as normalized,
+with each image's deviation from its subject's median removed, and with
+every eye's reference point at the patch centre. The gain from re-framing is
+what better framing at test time could still buy that model.
 
 Prints one JSON line: percentiles of the distance (px) and the standard
-deviation per axis (x right, y down, px), both eyes pooled, and each subject's
-median offset (the part that the subject's median removes).
+deviation per axis, both eyes pooled, each subject's median offset (the part
+the subject's median removes), and with ``--model`` the mean error (deg) and
+Pearson's r of pitch and yaw for each framing.
 """
 
 from __future__ import annotations
@@ -36,22 +47,81 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
+def _reframed(patches: np.ndarray, shift_px: np.ndarray) -> np.ndarray:
+    """(N, H, W, 3) uint8 patches moved by -shift_px ((N, 2) px, x right, y down), edges replicated."""
+    import cv2
+
+    out = np.empty_like(patches)
+    h, w = patches.shape[1:3]
+    for i, (p, (dx, dy)) in enumerate(zip(patches, shift_px, strict=True)):
+        m = np.float32([[1, 0, -dx], [0, 1, -dy]])
+        out[i] = cv2.warpAffine(p, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviations: np.ndarray) -> dict:
+    from gazeaug.metrics import mean_error_deg, pearson
+    from gazeaug.train import load_model, predict_arrays
+
+    model, _ = load_model(model_path)
+    out = {}
+    for name, shift in (
+        ("as_normalized", np.zeros_like(offsets)),
+        ("deviation_removed", deviations),
+        ("centred", offsets),
+    ):
+        pred = predict_arrays(
+            model,
+            _reframed(d["left_eye"], shift[:, 0]),
+            _reframed(d["right_eye"], shift[:, 1]),
+            d["head_pose"].astype(np.float32),
+        )
+        r = pearson(pred, d["gaze"])
+        out[name] = {
+            "error_deg": round(mean_error_deg(pred, d["gaze"]), 2),
+            "r_pitch": round(float(r[0]), 3),
+            "r_yaw": round(float(r[1]), 3),
+        }
+    return out
+
+
 def main() -> int:
     from gazeaug.errors import GazeAugError
     from gazeaug.io_h5 import H5TrainingSet
+    from gazeaug.simulate import eyeball_depth_mm
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("simulated", type=Path, help="a gazeaug simulate output folder")
     ap.add_argument("normalized", type=Path, help="its images through gazeaug normalize-dataset (.h5)")
     ap.add_argument("--focal", type=float, default=650.0, help="the normalized focal length, px (default 650)")
+    ap.add_argument(
+        "--reference",
+        choices=("contour", "eyeball"),
+        default="contour",
+        help="the eye's point to follow: the eye contour's centre (default) or the eyeball centre",
+    )
+    ap.add_argument("--model", type=Path, default=None, help="a model (.pt) to evaluate under each framing")
     args = ap.parse_args()
     if not (args.simulated / "simulation.jsonl").is_file():
         print(f"{args.simulated}: no simulation.jsonl (expected a gazeaug simulate output folder)", file=sys.stderr)
         return 2
     records = [json.loads(line) for line in (args.simulated / "simulation.jsonl").read_text().splitlines() if line]
+    settings: dict = {}
+    if (args.simulated / "simulation.json").is_file():
+        try:
+            settings = json.loads((args.simulated / "simulation.json").read_text()).get("settings", {})
+        except (json.JSONDecodeError, AttributeError) as exc:
+            print(f"{args.simulated / 'simulation.json'}: not a simulation summary ({exc})", file=sys.stderr)
+            return 2
+    if args.model is not None and not args.model.is_file():
+        print(f"{args.model}: no such model file", file=sys.stderr)
+        return 2
+    keys = ["R_norm_left", "R_norm_right", "source_index"]
+    if args.model is not None:
+        keys += ["left_eye", "right_eye", "head_pose", "gaze"]
     try:
         ts = H5TrainingSet(args.normalized)
-        d = ts.read(["R_norm_left", "R_norm_right", "source_index"])
+        d = ts.read(keys)
     except GazeAugError as exc:
         print(exc, file=sys.stderr)
         return 2
@@ -59,12 +129,19 @@ def main() -> int:
         print(f"{args.normalized}: rows of other images than {args.simulated}'s {len(records)}", file=sys.stderr)
         return 2
     subjects = ts.subjects[ts.rows]
+    base_depth = float(settings.get("eyeball_depth_mm", 10.5))
+    base_radius = float(settings.get("eyeball_radius_mm", 12.0))
     offsets = []  # (N, 2 eyes, 2) px
     for i, k in enumerate(d["source_index"]):
         rec = records[int(k)]
         row = []
         for side in ("left", "right"):
-            v = d[f"R_norm_{side}"][i] @ np.asarray(rec["eyeball_centres_mm"][side], dtype=np.float64)
+            point = np.asarray(rec["eyeball_centres_mm"][side], dtype=np.float64)
+            if args.reference == "contour":
+                radius = float((rec.get("subject_draw") or {}).get("eyeball_radius_mm", base_radius))
+                into_head = np.asarray(rec["head_rotation"], dtype=np.float64) @ [0.0, 0.0, 1.0]  # head +z in camera
+                point = point - eyeball_depth_mm(base_depth, radius) * into_head
+            v = d[f"R_norm_{side}"][i] @ point
             row.append(args.focal * v[:2] / v[2])
         offsets.append(row)
     off = np.asarray(offsets)
@@ -72,21 +149,23 @@ def main() -> int:
     dev = off - np.stack([medians[s] for s in subjects])
     dist = np.hypot(dev[..., 0], dev[..., 1]).ravel()
     pct = (50, 75, 90, 95, 100)
-    print(
-        json.dumps(
-            {
-                "images": len(off),
-                "focal_px": args.focal,
-                "distance_px_percentiles": {
-                    str(p): round(float(v), 2) for p, v in zip(pct, np.percentile(dist, pct), strict=True)
-                },
-                "std_px_xy": [round(float(v), 2) for v in dev.reshape(-1, 2).std(axis=0)],
-                "subject_median_px_xy": {
-                    s: [[round(float(v), 1) for v in eye] for eye in m] for s, m in medians.items()
-                },
-            }
-        )
-    )
+    result = {
+        "images": len(off),
+        "reference": args.reference,
+        "focal_px": args.focal,
+        "distance_px_percentiles": {
+            str(p): round(float(v), 2) for p, v in zip(pct, np.percentile(dist, pct), strict=True)
+        },
+        "std_px_xy": [round(float(v), 2) for v in dev.reshape(-1, 2).std(axis=0)],
+        "subject_median_px_xy": {s: [[round(float(v), 1) for v in eye] for eye in m] for s, m in medians.items()},
+    }
+    if args.model is not None:
+        try:
+            result["model"] = _model_under_framings(args.model, d, off, dev)
+        except GazeAugError as exc:
+            print(exc, file=sys.stderr)
+            return 2
+    print(json.dumps(result))
     return 0
 
 

@@ -233,7 +233,16 @@ def run() -> None:
         m = test["metrics"]
         row: dict[str, object] = {"constant_deg": round(m["mean_deg"]["constant"], 2)}
         for model in ("original", "augmented"):
-            for key in ("mean_deg", "ratio_to_constant", "bias_removed_deg", "pearson_pitch", "pearson_yaw"):
+            for key in (
+                "mean_deg",
+                "ratio_to_constant",
+                "bias_removed_deg",
+                "pearson_pitch",
+                "pearson_yaw",
+                "subject_offsets_removed_deg",
+                "pearson_within_pitch",
+                "pearson_within_yaw",
+            ):
                 v = m[key][model]
                 row[f"{model}.{key}"] = None if v["mean"] is None else round(v["mean"], 3)
                 if key == "mean_deg":

@@ -101,6 +101,14 @@ METRICS: tuple[tuple[str, str, str, int], ...] = (
     ("offset_yaw_deg", "Global offset of yaw: mean predicted - true", "deg", 2),
     ("pearson_pitch", "Pearson r, predicted vs true pitch", "", 3),
     ("pearson_yaw", "Pearson r, predicted vs true yaw", "", 3),
+    (
+        "subject_offsets_removed_deg",
+        "Per person: the error after removing each subject's own offset (a perfect one-offset calibration)",
+        "deg",
+        2,
+    ),
+    ("pearson_within_pitch", "Pearson r within subjects (each subject's means removed), pitch", "", 3),
+    ("pearson_within_yaw", "Pearson r within subjects (each subject's means removed), yaw", "", 3),
     ("subject_mean_deg", "Mean of the per-subject mean errors", "deg", 2),
     ("median_deg", "Median angular error", "deg", 2),
 )

@@ -29,6 +29,13 @@ nearly the same direction for every image. So besides it:
   and of predicted vs true yaw (NaN where either is constant: a constant
   predictor has no correlation);
 - **per-subject** mean errors (:func:`per_subject_errors_deg`);
+- **per person: offset vs reading** (:func:`subject_offsets_removed_error_deg`,
+  :func:`pearson_within_subjects`): the error after each subject's own offset
+  is removed from that subject's predictions (what a one-offset calibration
+  per person, :mod:`gazeaug.calibration`'s ``bias``, could reach at best), and
+  Pearson's r within subjects (each subject's mean predicted and mean true
+  angle removed before r is taken): whether the model follows a person's gaze
+  from image to image, whatever offset it has for that person;
 - a **bootstrap interval** of the relative error reduction between two models
   on the same samples (:func:`bootstrap_reduction`), resampling subjects (all
   of a subject's samples together: what generalizes to new people) or
@@ -57,6 +64,8 @@ __all__ = [
     "bias_removed_error_deg",
     "pearson",
     "per_subject_errors_deg",
+    "subject_offsets_removed_error_deg",
+    "pearson_within_subjects",
     "relative_reduction_percent",
     "bootstrap_reduction",
     "summarize",
@@ -175,6 +184,41 @@ def per_subject_errors_deg(errors: ArrayLike, subjects: ArrayLike) -> dict[str, 
     return {str(k): float(e[s == k].mean()) for k in sorted(set(s.tolist()))}
 
 
+def subject_offsets_removed_error_deg(pred: ArrayLike, true: ArrayLike, subjects: ArrayLike) -> float:
+    """Mean angular error, degrees, once each subject's own :func:`global_offset` leaves that subject's predictions.
+
+    Args:
+        pred: (N, 2) float radians (pitch, yaw), face frame.
+        true: (N, 2) float radians (pitch, yaw), the same frame.
+        subjects: (N,) subject names.
+    """
+    p, t = _pair(pred, true)
+    s = _subjects(subjects, len(p))
+    q = p.copy()
+    for k in set(s.tolist()):
+        rows = s == k
+        q[rows] -= global_offset(p[rows], t[rows])
+    return mean_error_deg(q, t)
+
+
+def pearson_within_subjects(pred: ArrayLike, true: ArrayLike, subjects: ArrayLike) -> NDArray[np.float64]:
+    """(2,) float64: Pearson's r of pitch and of yaw within subjects; NaN where undefined.
+
+    Each subject's mean predicted and mean true angle are subtracted from that subject's
+    predicted and true angles (yaws are not wrapped, as in :func:`pearson`), and r is taken over
+    all samples pooled: a model that reads each person's gaze but with a different offset per
+    person scores 1; one that outputs a constant per person has no correlation (NaN).
+    """
+    p, t = _pair(pred, true)
+    s = _subjects(subjects, len(p))
+    dp, dt = p.copy(), t.copy()
+    for k in set(s.tolist()):
+        rows = s == k
+        dp[rows] -= p[rows].mean(axis=0)
+        dt[rows] -= t[rows].mean(axis=0)
+    return np.array([_r(dp[:, 0], dt[:, 0]), _r(dp[:, 1], dt[:, 1])])
+
+
 def relative_reduction_percent(errors_a: ArrayLike, errors_b: ArrayLike) -> float:
     """``100 (mean a - mean b) / mean a``: how much model b lowers model a's mean error on the same (N,) samples.
 
@@ -275,13 +319,17 @@ def summarize(pred: ArrayLike, true: ArrayLike, subjects: Sequence[str] | ArrayL
         ``mean_gaze_deg`` ((pitch, yaw) of :func:`mean_gaze`, degrees); ``offset_deg`` ((pitch,
         yaw) of :func:`global_offset`, degrees); ``bias_removed_deg``; ``pearson_pitch``,
         ``pearson_yaw``; ``per_subject_deg`` ({subject: mean error}); ``subject_mean_deg``
-        (the mean of the per-subject means: every person weighs the same).
+        (the mean of the per-subject means: every person weighs the same);
+        ``subject_offsets_removed_deg`` (:func:`subject_offsets_removed_error_deg`);
+        ``pearson_within_pitch``, ``pearson_within_yaw`` (:func:`pearson_within_subjects`).
     """
     p, t = _pair(pred, true)
     errors = angular_errors_deg(p, t)
     per = per_subject_errors_deg(errors, _subjects(subjects, len(p)))
     const = constant_guess_error_deg(t)
     r = pearson(p, t)
+    names = _subjects(subjects, len(p))
+    within = pearson_within_subjects(p, t, names)
     mean = float(errors.mean())
 
     def plain(v: float) -> float | None:
@@ -300,4 +348,7 @@ def summarize(pred: ArrayLike, true: ArrayLike, subjects: Sequence[str] | ArrayL
         "pearson_yaw": plain(float(r[1])),
         "per_subject_deg": per,
         "subject_mean_deg": float(np.mean(list(per.values()))),
+        "subject_offsets_removed_deg": subject_offsets_removed_error_deg(p, t, names),
+        "pearson_within_pitch": plain(float(within[0])),
+        "pearson_within_yaw": plain(float(within[1])),
     }

@@ -69,6 +69,7 @@ __all__ = [
     "SimFrame",
     "simulate",
     "eye_contours",
+    "eyeball_depth_mm",
     "rig_pose",
     "eyes_only",
 ]
@@ -288,6 +289,21 @@ def draw_subject(settings: SimSettings, rng: np.random.Generator) -> SubjectDraw
         iris_pattern=int(rng.integers(2**31)),
         glasses=glasses,
     )
+
+
+def eyeball_depth_mm(base_depth_mm: float, eyeball_radius_mm: float) -> float:
+    """How far an eyeball's centre lies behind its eye contour's centre, mm (head frame +z).
+
+    Args:
+        base_depth_mm: the depth for a 12 mm eyeball (:attr:`SimSettings.eyeball_depth_mm`).
+        eyeball_radius_mm: the eyeball's radius, mm; a larger sphere sits deeper by the
+            difference, so that its front stays where a 12 mm one's would.
+
+    Returns:
+        The depth, mm. The contour's centre is the eyeball centre moved by it along the head
+        frame's -z (towards the face's front): ``centre_cam - R_head @ (0, 0, depth)``.
+    """
+    return float(base_depth_mm) + (float(eyeball_radius_mm) - 12.0)
 
 
 def eyes_only(draw: SubjectDraw) -> SubjectDraw:
@@ -644,7 +660,7 @@ class SimSubject:
         self.contours = eye_contours()
         self.eye_centre: dict[str, NDArray[np.float64]] = {}
         self.lid_weight = np.zeros((len(head), 2))  # (upper, lower) travel weights per vertex
-        depth = s.eyeball_depth_mm + (d.eyeball_radius_mm - 12.0)
+        depth = eyeball_depth_mm(s.eyeball_depth_mm, d.eyeball_radius_mm)
         for side, loop in self.contours.items():
             ids = np.asarray(loop)
             c = head[ids].mean(axis=0)

@@ -91,6 +91,37 @@ def test_perfect_predictor():
     assert s["offset_deg"] == pytest.approx([0.0, 0.0], abs=1e-12)
 
 
+def test_a_different_offset_per_person_is_removed_per_person_but_not_globally():
+    from gazeaug.metrics import pearson_within_subjects, subject_offsets_removed_error_deg
+
+    true = np.radians([[0.0, -10.0], [10.0, 10.0], [0.0, -10.0], [10.0, 10.0]])
+    # person a read 5 deg too high in pitch, person b 5 deg too low: no global offset at all
+    pred = true + np.radians([[5.0, 0.0], [5.0, 0.0], [-5.0, 0.0], [-5.0, 0.0]])
+    people = ["a", "a", "b", "b"]
+    assert subject_offsets_removed_error_deg(pred, true, people) == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(pearson_within_subjects(pred, true, people), [1.0, 1.0])
+    s = summarize(pred, true, people)
+    # a pitch error of 5 deg at yaw +-10 deg: the angle between the two gaze vectors, by the dot product
+    # cos e = cos p1 cos p2 + sin p1 sin p2 (same yaw): e = 5 deg exactly
+    assert s["bias_removed_deg"] == pytest.approx(5.0, abs=1e-6)
+    assert s["subject_offsets_removed_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert s["pearson_within_pitch"] == pytest.approx(1.0) and s["pearson_within_yaw"] == pytest.approx(1.0)
+
+
+def test_pearson_within_subjects_by_hand():
+    from gazeaug.metrics import pearson_within_subjects
+
+    # within a: true pitch -1, +1 about its mean, predicted -1, +1; within b: true -1, +1, predicted +1, -1
+    # pooled: sum(dp dt) = 1 + 1 - 1 - 1 = 0 -> r 0. Yaw predicted 2x the truth about each mean -> r 1.
+    true = np.radians([[9.0, 0.0], [11.0, 2.0], [-1.0, 5.0], [1.0, 7.0]])
+    pred = np.radians([[0.0, 10.0], [2.0, 14.0], [21.0, -3.0], [19.0, 1.0]])
+    np.testing.assert_allclose(pearson_within_subjects(pred, true, ["a", "a", "b", "b"]), [0.0, 1.0], atol=1e-12)
+    # a constant per person: nothing varies within a person, no correlation
+    const = np.radians([[3.0, 3.0], [3.0, 3.0], [-4.0, 1.0], [-4.0, 1.0]])
+    assert np.isnan(pearson_within_subjects(const, true, ["a", "a", "b", "b"])).all()
+    assert summarize(const, true, ["a", "a", "b", "b"])["pearson_within_pitch"] is None
+
+
 def test_constant_predictor_at_the_mean_gaze_has_ratio_one():
     true = np.radians([[0.0, 0.0], [0.0, 30.0], [0.0, -30.0], [10.0, 5.0]])
     pred = np.broadcast_to(mean_gaze(true), true.shape)

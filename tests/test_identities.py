@@ -309,3 +309,21 @@ def test_iris_colour_falls_back_to_the_ring_then_to_a_default():
     np.testing.assert_allclose(_iris_colour(img, pts, "right"), (200, 150, 120))
     pts[468:473] += (0, -400)  # the iris above the image
     np.testing.assert_allclose(_iris_colour(img, pts, "right"), (90, 70, 50))
+
+
+def test_a_larger_eyeball_sits_deeper_so_that_its_front_stays(photo):
+    from gazeaug.simulate import SimSubject, eyeball_depth_mm
+
+    # by hand: 10.5 mm behind the contour for 12 mm; 13 mm sits 1 mm deeper, 11.5 mm 0.5 mm shallower
+    assert eyeball_depth_mm(10.5, 12.0) == 10.5
+    assert eyeball_depth_mm(10.5, 13.0) == 11.5
+    assert eyeball_depth_mm(10.5, 11.5) == 10.0
+    s = SimSettings(relight=False)
+    for radius in (11.5, 12.0, 13.0):
+        subj = SimSubject(photo, "e", s, SubjectDraw(eyeball_radius_mm=radius))
+        for side, loop in subj.contours.items():
+            contour_centre = subj.head[np.asarray(loop)].mean(axis=0)
+            # the centre lies straight behind the contour's centre (head frame +z) ...
+            np.testing.assert_allclose(subj.eye_centre[side][:2], contour_centre[:2], atol=1e-9)
+            # ... with its front surface 1.5 mm behind the contour whatever the radius
+            assert subj.eye_centre[side][2] - radius - contour_centre[2] == pytest.approx(-1.5, abs=1e-9)
