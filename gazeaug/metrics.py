@@ -187,6 +187,9 @@ def per_subject_errors_deg(errors: ArrayLike, subjects: ArrayLike) -> dict[str, 
 def subject_offsets_removed_error_deg(pred: ArrayLike, true: ArrayLike, subjects: ArrayLike) -> float:
     """Mean angular error, degrees, once each subject's own :func:`global_offset` leaves that subject's predictions.
 
+    Only subjects with two samples or more count (one sample's own offset removes its whole error);
+    NaN when no subject has two.
+
     Args:
         pred: (N, 2) float radians (pitch, yaw), face frame.
         true: (N, 2) float radians (pitch, yaw), the same frame.
@@ -194,11 +197,21 @@ def subject_offsets_removed_error_deg(pred: ArrayLike, true: ArrayLike, subjects
     """
     p, t = _pair(pred, true)
     s = _subjects(subjects, len(p))
+    keep = _repeated(s)
+    if not keep.any():
+        return math.nan
+    p, t, s = p[keep], t[keep], s[keep]
     q = p.copy()
     for k in set(s.tolist()):
         rows = s == k
         q[rows] -= global_offset(p[rows], t[rows])
     return mean_error_deg(q, t)
+
+
+def _repeated(s: NDArray[np.str_]) -> NDArray[np.bool_]:
+    """(N,) bool: the samples whose subject has two samples or more."""
+    names, counts = np.unique(s, return_counts=True)
+    return np.isin(s, names[counts >= 2])
 
 
 def pearson_within_subjects(pred: ArrayLike, true: ArrayLike, subjects: ArrayLike) -> NDArray[np.float64]:
@@ -207,10 +220,13 @@ def pearson_within_subjects(pred: ArrayLike, true: ArrayLike, subjects: ArrayLik
     Each subject's mean predicted and mean true angle are subtracted from that subject's
     predicted and true angles (yaws are not wrapped, as in :func:`pearson`), and r is taken over
     all samples pooled: a model that reads each person's gaze but with a different offset per
-    person scores 1; one that outputs a constant per person has no correlation (NaN).
+    person scores 1; one that outputs a constant per person has no correlation (NaN). Only
+    subjects with two samples or more count (NaN when none has two).
     """
     p, t = _pair(pred, true)
     s = _subjects(subjects, len(p))
+    keep = _repeated(s)
+    p, t, s = p[keep], t[keep], s[keep]
     dp, dt = p.copy(), t.copy()
     for k in set(s.tolist()):
         rows = s == k
@@ -348,7 +364,7 @@ def summarize(pred: ArrayLike, true: ArrayLike, subjects: Sequence[str] | ArrayL
         "pearson_yaw": plain(float(r[1])),
         "per_subject_deg": per,
         "subject_mean_deg": float(np.mean(list(per.values()))),
-        "subject_offsets_removed_deg": subject_offsets_removed_error_deg(p, t, names),
+        "subject_offsets_removed_deg": plain(subject_offsets_removed_error_deg(p, t, names)),
         "pearson_within_pitch": plain(float(within[0])),
         "pearson_within_yaw": plain(float(within[1])),
     }

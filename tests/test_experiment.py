@@ -122,6 +122,21 @@ def test_pearson_within_subjects_by_hand():
     assert summarize(const, true, ["a", "a", "b", "b"])["pearson_within_pitch"] is None
 
 
+def test_per_person_metrics_leave_out_people_seen_once():
+    from gazeaug.metrics import pearson_within_subjects, subject_offsets_removed_error_deg
+
+    true = np.radians([[0.0, 0.0], [10.0, 0.0], [0.0, 0.0], [20.0, 0.0]])
+    pred = np.radians([[5.0, 0.0], [15.0, 0.0], [3.0, 0.0], [0.0, 0.0]])
+    # c and d have one image each: removing their own offset would erase their errors (0 deg); they are
+    # left out, and a and b (offset 5 deg, read exactly) give 0 by hand
+    assert subject_offsets_removed_error_deg(pred, true, ["a", "a", "c", "d"]) == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(pearson_within_subjects(pred, true, ["a", "a", "c", "d"]), [1.0, math.nan])
+    # every person seen once (a set of one image per identity): undefined, not a perfect 0
+    s = summarize(pred, true, ["a", "b", "c", "d"])
+    assert s["subject_offsets_removed_deg"] is None
+    assert s["pearson_within_pitch"] is None and s["pearson_within_yaw"] is None
+
+
 def test_constant_predictor_at_the_mean_gaze_has_ratio_one():
     true = np.radians([[0.0, 0.0], [0.0, 30.0], [0.0, -30.0], [10.0, 5.0]])
     pred = np.broadcast_to(mean_gaze(true), true.shape)
