@@ -88,7 +88,7 @@ def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviat
 def main() -> int:
     from gazeaug.errors import GazeAugError
     from gazeaug.io_h5 import H5TrainingSet
-    from gazeaug.simulate import eyeball_depth_mm
+    from gazeaug.simulate import SimSettings, eyeball_depth_mm
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("simulated", type=Path, help="a gazeaug simulate output folder")
@@ -129,8 +129,8 @@ def main() -> int:
         print(f"{args.normalized}: rows of other images than {args.simulated}'s {len(records)}", file=sys.stderr)
         return 2
     subjects = ts.subjects[ts.rows]
-    base_depth = float(settings.get("eyeball_depth_mm", 10.5))
-    base_radius = float(settings.get("eyeball_radius_mm", 12.0))
+    base_depth = float(settings.get("eyeball_depth_mm", SimSettings.eyeball_depth_mm))
+    base_radius = float(settings.get("eyeball_radius_mm", SimSettings.eyeball_radius_mm))
     offsets = []  # (N, 2 eyes, 2) px
     for i, k in enumerate(d["source_index"]):
         rec = records[int(k)]

@@ -195,23 +195,25 @@ def subject_offsets_removed_error_deg(pred: ArrayLike, true: ArrayLike, subjects
         true: (N, 2) float radians (pitch, yaw), the same frame.
         subjects: (N,) subject names.
     """
-    p, t = _pair(pred, true)
-    s = _subjects(subjects, len(p))
-    keep = _repeated(s)
-    if not keep.any():
+    p, t, groups = _repeated_subjects(pred, true, subjects)
+    if not groups:
         return math.nan
-    p, t, s = p[keep], t[keep], s[keep]
     q = p.copy()
-    for k in set(s.tolist()):
-        rows = s == k
+    for rows in groups:
         q[rows] -= global_offset(p[rows], t[rows])
     return mean_error_deg(q, t)
 
 
-def _repeated(s: NDArray[np.str_]) -> NDArray[np.bool_]:
-    """(N,) bool: the samples whose subject has two samples or more."""
+def _repeated_subjects(
+    pred: ArrayLike, true: ArrayLike, subjects: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.bool_]]]:
+    """The samples of subjects with two samples or more: (K, 2) predicted, (K, 2) true, one row mask per subject."""
+    p, t = _pair(pred, true)
+    s = _subjects(subjects, len(p))
     names, counts = np.unique(s, return_counts=True)
-    return np.isin(s, names[counts >= 2])
+    keep = np.isin(s, names[counts >= 2])
+    p, t, s = p[keep], t[keep], s[keep]
+    return p, t, [s == k for k in names[counts >= 2]]
 
 
 def pearson_within_subjects(pred: ArrayLike, true: ArrayLike, subjects: ArrayLike) -> NDArray[np.float64]:
@@ -223,13 +225,9 @@ def pearson_within_subjects(pred: ArrayLike, true: ArrayLike, subjects: ArrayLik
     person scores 1; one that outputs a constant per person has no correlation (NaN). Only
     subjects with two samples or more count (NaN when none has two).
     """
-    p, t = _pair(pred, true)
-    s = _subjects(subjects, len(p))
-    keep = _repeated(s)
-    p, t, s = p[keep], t[keep], s[keep]
+    p, t, groups = _repeated_subjects(pred, true, subjects)
     dp, dt = p.copy(), t.copy()
-    for k in set(s.tolist()):
-        rows = s == k
+    for rows in groups:
         dp[rows] -= p[rows].mean(axis=0)
         dt[rows] -= t[rows].mean(axis=0)
     return np.array([_r(dp[:, 0], dt[:, 0]), _r(dp[:, 1], dt[:, 1])])
@@ -340,11 +338,11 @@ def summarize(pred: ArrayLike, true: ArrayLike, subjects: Sequence[str] | ArrayL
         ``pearson_within_pitch``, ``pearson_within_yaw`` (:func:`pearson_within_subjects`).
     """
     p, t = _pair(pred, true)
+    names = _subjects(subjects, len(p))
     errors = angular_errors_deg(p, t)
-    per = per_subject_errors_deg(errors, _subjects(subjects, len(p)))
+    per = per_subject_errors_deg(errors, names)
     const = constant_guess_error_deg(t)
     r = pearson(p, t)
-    names = _subjects(subjects, len(p))
     within = pearson_within_subjects(p, t, names)
     mean = float(errors.mean())
 
