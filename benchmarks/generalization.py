@@ -67,7 +67,7 @@ def worst_sheet(model_path: Path, test_h5: Path, out_png: Path) -> None:
 
     model, _ = load_model(model_path)
     d = read_h5(test_h5)
-    pred = predict_arrays(model, d["left_eye"], d["right_eye"], d["head_pose"])
+    pred = predict_arrays(model, d["left_eye"], d["right_eye"], d["head_pose"], face=d.get("face"))
     err = angular_errors_deg(pred, d["gaze"])
 
     def tile(i: int) -> np.ndarray:
@@ -126,7 +126,10 @@ def run() -> None:
     ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
-    _add_normalization_options(ap)  # --distance, --focal, --patch-size, --no-antialias, as gazeaug's commands
+    _add_normalization_options(ap)  # --distance, --focal, --patch-size, --no-antialias, --face-patch, as gazeaug's
+    ap.add_argument(
+        "--face", action="store_true", help="the models read the normalized face patch too (needs --face-patch W H)"
+    )
     ap.add_argument(
         "--redirect-eyes",
         action="store_true",
@@ -144,6 +147,8 @@ def run() -> None:
     if args.identities > args.per_face:
         ap.error(f"--identities: expected at most --per-face ({args.per_face}), got {args.identities}")
     normalization = _settings(args)  # before anything is simulated: GazeAugError exits 2
+    if args.face and normalization.face_patch_size_wh is None:
+        ap.error("--face: the models read a face patch; give its size with --face-patch W H (e.g. 224 224)")
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     out = args.output
@@ -209,7 +214,9 @@ def run() -> None:
         per_sample=args.per_sample,
         distribution=rig.distribution(),
         # the library's defaults (not the built-in setup's shorter budget): fitted to the augmented set
-        train=TrainSettings(epochs=args.epochs, batch_size=args.batch_size),
+        train=TrainSettings(
+            epochs=args.epochs, batch_size=args.batch_size, model_options={"face": True} if args.face else {}
+        ),
         workers=args.workers,
         seed=args.seed,
         seeds=args.seeds,
@@ -225,6 +232,7 @@ def run() -> None:
         "per_sample": args.per_sample,
         "vary_identity": not args.no_vary,
         "eyes": "redirect" if args.redirect_eyes else "keep",
+        "face_input": args.face,
         "normalization": normalization.as_dict(),
         "simulate_s": round(t_sim, 1),
         "total_s": round(time.perf_counter() - t0, 1),

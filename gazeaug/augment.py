@@ -32,9 +32,9 @@ from facemesh.conventions import rotation_from_yaw_pitch, vector_to_pitchyaw, ya
 from facemesh.face_models import BUILTIN_MODELS, FaceKeypoints, builtin_face_model
 from facemesh.types import FaceMesh
 
-from .camera import NormalizedViews, reference_points_head
+from .camera import NormalizedCamera, reference_points_head
 from .errors import GazeAugError
-from .normalize import NormalizationSettings, NormalizedSample, samples_from_views, views_at
+from .normalize import NormalizationSettings, NormalizedSample, face_patch_camera, samples_from_views, views_at
 from .render.base import RenderMesh, Scene, View, render_mesh
 
 if TYPE_CHECKING:
@@ -181,15 +181,19 @@ def source_placement(asset: FaceAsset) -> HeadPlacement:
 
 
 def _render_views(
-    asset: FaceAsset, views: NormalizedViews, rot: NDArray[np.float64], trans: NDArray[np.float64]
+    asset: FaceAsset,
+    cameras: Sequence[Sequence[NormalizedCamera]],
+    rot: NDArray[np.float64],
+    trans: NDArray[np.float64],
 ) -> list[View]:
-    """The renderer's views of both eyes at each placement (``rot``, ``trans``: head -> application camera)."""
+    """The renderer's views through each placement's cameras (``rot``, ``trans``: head -> application camera).
+
+    ``cameras[i]`` are placement i's cameras (both eyes, or its face patch), in the application camera's frame.
+    """
     r_h, t_h = asset.mesh.pose.rotation, asset.mesh.pose.translation_mm
     a = rot @ r_h.T  # mesh (source camera frame) -> application camera frame
     b = trans - np.einsum("pij,j->pi", a, t_h)
-    return [
-        View(camera=views.cameras[i][j], rotation=a[i], translation_mm=b[i]) for i in range(len(rot)) for j in range(2)
-    ]
+    return [View(camera=c, rotation=a[i], translation_mm=b[i]) for i in range(len(rot)) for c in cameras[i]]
 
 
 def _sample_metas(placements: Sequence[HeadPlacement], meta: Mapping[str, Any] | None) -> list[dict[str, Any]]:
@@ -253,8 +257,12 @@ def render_poses(
     views = views_at(
         asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets, gaze_vector=vectors
     )
-    out = scene.render(_render_views(asset, views, rot, trans))
+    out = scene.render(_render_views(asset, [c[:2] for c in views.cameras], rot, trans))
     h, w = s.patch_size_wh[1], s.patch_size_wh[0]
+    faces = face_cover = None
+    if s.face_patch_size_wh is not None:
+        face = scene.render(_render_views(asset, [[face_patch_camera(c[2], s)] for c in views.cameras], rot, trans))
+        faces, face_cover = np.asarray(face.images), np.asarray(face.coverage)
     metas = _sample_metas(placements, meta)
     return samples_from_views(
         views,
@@ -264,6 +272,8 @@ def render_poses(
         f"render:{renderer_name}",
         coverage=np.asarray(out.coverage).reshape(len(rot), 2),
         metas=metas,
+        face_patches=faces,
+        face_coverage=face_cover,
     )
 
 
@@ -428,24 +438,39 @@ def render_redirected(
         raise GazeAugError(f"targets: expected finite ({len(placements)}, 3) mm, got shape {targets.shape}")
     views = views_at(asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets)
     blur = eye_softness_px(asset, s)
-    images, coverage = [], []
+    # the face patch's pixels per mm against the eye patches' (both cameras at their own d_n)
+    face_zoom = (s.face_focal_px / s.face_distance_mm) / (s.focal_px / s.distance_mm)
+    images, coverage, faces, face_cover = [], [], [], []
     for i in range(len(placements)):
-        im, cov = subject.render_patches(
+        groups: list[tuple[Sequence[NormalizedCamera], float]] = [(views.cameras[i][:2], blur)]
+        if s.face_patch_size_wh is not None:
+            groups.append(([face_patch_camera(views.cameras[i][2], s)], blur * face_zoom))
+        rendered = subject.render_patch_groups(
             rot[i],
             trans[i],
             targets[i],
-            views.cameras[i][:2],
+            groups,
             antialias=s.antialias,
-            eye_blur_px=blur,
             supersample=REDIRECT_SUPERSAMPLE if supersample is None else supersample,
             threads=threads,
             rng=rng,
         )
-        images.append(im)
-        coverage.append(cov)
+        images.append(rendered[0][0])
+        coverage.append(rendered[0][1])
+        if len(rendered) > 1:
+            faces.append(rendered[1][0][0])
+            face_cover.append(rendered[1][1][0])
     metas = _sample_metas(placements, meta)
     return samples_from_views(
-        views, np.stack(images), s, rot, "render:redirect", coverage=np.stack(coverage), metas=metas
+        views,
+        np.stack(images),
+        s,
+        rot,
+        "render:redirect",
+        coverage=np.stack(coverage),
+        metas=metas,
+        face_patches=np.stack(faces) if faces else None,
+        face_coverage=np.asarray(face_cover) if faces else None,
     )
 
 
@@ -488,7 +513,7 @@ def texture_shortfall(
     rm, mesh = asset.render_mesh, asset.mesh
     th, tw = rm.texture.shape[:2]
     fragments = RayCaster([(rm.vertices_mm, rm.triangles)]).trace(
-        view_rays_packed(_render_views(asset, views, rot, trans))
+        view_rays_packed(_render_views(asset, [c[:2] for c in views.cameras], rot, trans))
     )
     hit = fragments.hit
     px = TexelTable(rm.uv, rm.triangles, (tw, th)).texture_px(fragments)

@@ -124,6 +124,26 @@ def _add_normalization_options(p: argparse.ArgumentParser) -> None:
         help="eye patch width and height, px (default 60 36)",
     )
     p.add_argument(
+        "--face-patch",
+        type=int,
+        nargs=2,
+        default=None,
+        metavar=("W", "H"),
+        help="also make a normalized face patch of this width and height, px (ETH-XGaze's: 224 224); default: none",
+    )
+    p.add_argument(
+        "--face-distance",
+        type=finite_float,
+        default=None,
+        help="the face camera's normalized distance in mm (default 600, ETH-XGaze's; needs --face-patch)",
+    )
+    p.add_argument(
+        "--face-focal",
+        type=finite_float,
+        default=None,
+        help="the face camera's normalized focal length in px (default 960, ETH-XGaze's; needs --face-patch)",
+    )
+    p.add_argument(
         "--no-antialias",
         action="store_true",
         help="plain bilinear sampling, as cv2.warpPerspective (default: antialiased, each pixel's footprint "
@@ -620,13 +640,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _settings(args: argparse.Namespace) -> Any:
+    from .errors import GazeAugError
     from .normalize import NormalizationSettings
 
+    face: dict[str, Any] = {}
+    if args.face_patch is not None:
+        face["face_patch_size_wh"] = tuple(args.face_patch)
+    elif args.face_distance is not None or args.face_focal is not None:
+        raise GazeAugError("--face-distance and --face-focal need --face-patch W H")
+    if args.face_distance is not None:
+        face["face_distance_mm"] = args.face_distance
+    if args.face_focal is not None:
+        face["face_focal_px"] = args.face_focal
     return NormalizationSettings(
         distance_mm=args.distance,
         focal_px=args.focal,
         patch_size_wh=tuple(args.patch_size),
         antialias=not args.no_antialias,
+        **face,
     )
 
 
@@ -890,6 +921,12 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         help="the model predicts from the eyes alone; by default its answer is averaged with its answer on the "
         "mirrored eyes (recorded in the model and applied by predict, evaluate, track, export)",
     )
+    p.add_argument(
+        "--face",
+        action="store_true",
+        help="the model also reads the normalized face patch (the data must carry one: made with --face-patch W H; "
+        "default: the eyes and the head pose)",
+    )
 
 
 def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
@@ -900,6 +937,7 @@ def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
         "augment": TrainAugment(enabled=not args.no_augment),
         "input_mode": args.input,
         "mirror_average": not args.no_mirror_average,
+        "model_options": {"face": True} if args.face else {},
     }
 
 
@@ -1192,6 +1230,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
     distribution = _distribution(args)  # a bad rig, distribution or patch is refused before minutes of work
     normalization = _settings(args)
+    if args.face and normalization.face_patch_size_wh is None:
+        raise GazeAugError("--face: the model reads a face patch; give its size with --face-patch W H (e.g. 224 224)")
     eyes = _eyes(args)
     defaults = TrainSettings()
     if args.train is None:

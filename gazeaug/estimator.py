@@ -29,6 +29,9 @@ __all__ = ["GazeEstimator", "load_estimator", "ONNX_INSTALL_HINT"]
 
 ONNX_INSTALL_HINT = "running an .onnx model needs ONNX Runtime: pip install onnxruntime"
 
+#: The inputs of every gazeaug ONNX model, sorted (a model that reads the face patch has ``face`` too).
+_ONNX_INPUTS = ["head_pose", "left_eye", "right_eye"]
+
 
 @dataclass(frozen=True)
 class GazeEstimator:
@@ -49,31 +52,57 @@ class GazeEstimator:
     meta: dict[str, Any]
     _runner: Any
 
+    @property
+    def uses_face(self) -> bool:
+        """True when the model reads the normalized face patch too (give :meth:`predict` ``face``)."""
+        if self.kind == "pytorch":
+            from .models import uses_face
+
+            return uses_face(self._runner)
+        return "face" in {i.name for i in self._runner.get_inputs()}
+
     def predict(
-        self, left: NDArray[np.uint8], right: NDArray[np.uint8], head_pose: NDArray[np.floating[Any]]
+        self,
+        left: NDArray[np.uint8],
+        right: NDArray[np.uint8],
+        head_pose: NDArray[np.floating[Any]],
+        face: NDArray[np.uint8] | None = None,
     ) -> NDArray[np.float64]:
-        """Gaze for normalized eyes.
+        """Gaze for normalized eyes (and face).
 
         Args:
             left: (N, H, W, 3) uint8 RGB, the left eye patches (``normalization.patch_size_wh``).
             right: (N, H, W, 3) uint8 RGB, the right eye patches.
             head_pose: (N, 2) float, radians (pitch, yaw), face-centre normalized frame.
+            face: (N, Hf, Wf, 3) uint8 RGB, the normalized face patches
+                (``normalization.face_patch_size_wh``): needed when :attr:`uses_face`, else ignored.
 
         Returns:
             (N, 2) float64 radians (pitch, yaw), face-centre normalized frame.
         """
         w, h = self.normalization.patch_size_wh
-        for name, a in (("left", left), ("right", right)):
-            if a.ndim != 4 or a.shape[1:] != (h, w, 3) or a.dtype != np.uint8:
-                raise GazeAugError(f"{name} eye patches: expected (N, {h}, {w}, 3) uint8, got {a.shape} {a.dtype}")
+        patches = [("left eye", left, (h, w)), ("right eye", right, (h, w))]
+        if not self.uses_face:
+            face = None
+        elif face is None:
+            raise GazeAugError(f"{self.path}: the model reads a normalized face patch as well, and none was given")
+        else:
+            fw, fh = self.normalization.face_patch_size_wh or (0, 0)
+            patches.append(("face", face, (fh, fw)))
+        for name, a, (ph, pw) in patches:
+            if a.ndim != 4 or a.shape[1:] != (ph, pw, 3) or a.dtype != np.uint8:
+                raise GazeAugError(f"{name} patches: expected (N, {ph}, {pw}, 3) uint8, got {a.shape} {a.dtype}")
         if self.kind == "pytorch":
             from .train import predict_arrays
 
-            return predict_arrays(self._runner, left, right, np.asarray(head_pose), input_mode=self.input_mode)
+            return predict_arrays(
+                self._runner, left, right, np.asarray(head_pose), input_mode=self.input_mode, face=face
+            )
         from .models.preprocess import prepare_inputs
 
-        a, b, c = prepare_inputs(left, right, np.asarray(head_pose), self.input_mode)
-        feed = {"left_eye": a.contiguous().numpy(), "right_eye": b.contiguous().numpy(), "head_pose": c.numpy()}
+        inputs = prepare_inputs(left, right, np.asarray(head_pose), self.input_mode, face=face)
+        names = ("left_eye", "right_eye", "head_pose", "face")
+        feed = {k: t.contiguous().numpy() for k, t in zip(names, inputs)}
         (out,) = self._runner.run(["gaze"], feed)
         return np.asarray(out, dtype=np.float64)
 
@@ -84,7 +113,8 @@ class GazeEstimator:
         """
         w, h = self.normalization.patch_size_wh
         blank = np.zeros((1, h, w, 3), np.uint8)
-        self.predict(blank, blank, np.zeros((1, 2)))
+        fw, fh = self.normalization.face_patch_size_wh or (w, h)
+        self.predict(blank, blank, np.zeros((1, 2)), np.zeros((1, fh, fw, 3), np.uint8))
 
 
 def load_estimator(path: str | Path, device: str = "cpu") -> GazeEstimator:
@@ -126,8 +156,12 @@ def _load_onnx(p: Path) -> GazeEstimator:
         raise GazeAugError(f"{p}: not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from exc
     props = dict(session.get_modelmeta().custom_metadata_map)
     names = sorted(i.name for i in session.get_inputs())
-    if names != ["head_pose", "left_eye", "right_eye"] or [o.name for o in session.get_outputs()] != ["gaze"]:
-        raise GazeAugError(f"{p}: not a gazeaug ONNX model (inputs {names}; expected head_pose, left_eye, right_eye)")
+    if names not in (_ONNX_INPUTS, sorted([*_ONNX_INPUTS, "face"])) or [o.name for o in session.get_outputs()] != [
+        "gaze"
+    ]:
+        raise GazeAugError(
+            f"{p}: not a gazeaug ONNX model (inputs {names}; expected head_pose, left_eye, right_eye and maybe face)"
+        )
     try:
         mode = check_input_mode(props["gazeaug.input_mode"])
         norm = NormalizationSettings.from_dict(json.loads(props["gazeaug.normalization"]))
@@ -140,10 +174,14 @@ def _load_onnx(p: Path) -> GazeEstimator:
     except (ValueError, TypeError, GazeAugError) as exc:
         raise GazeAugError(f"{p}: unusable gazeaug metadata in the ONNX file ({exc})") from exc
     w, h = norm.patch_size_wh
+    if "face" in names and norm.face_patch_size_wh is None:
+        raise GazeAugError(f"{p}: the model reads a face patch, and its metadata's normalization makes none")
+    fw, fh = norm.face_patch_size_wh or (0, 0)
     for inp in session.get_inputs():
-        if inp.name in ("left_eye", "right_eye") and list(inp.shape[1:]) != [3, h, w]:
+        want = {"left_eye": [3, h, w], "right_eye": [3, h, w], "face": [3, fh, fw]}.get(inp.name)
+        if want is not None and list(inp.shape[1:]) != want:
             raise GazeAugError(
-                f"{p}: the model takes {inp.name} of shape {inp.shape[1:]}, its metadata names {w}x{h} patches "
-                f"(expected [3, {h}, {w}])"
+                f"{p}: the model takes {inp.name} of shape {inp.shape[1:]}, its metadata name "
+                f"{want[2]}x{want[1]} patches (expected {want})"
             )
     return GazeEstimator(p, "onnx", norm, mode, props, session)

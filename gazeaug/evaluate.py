@@ -40,6 +40,7 @@ from .datasets.base import DatasetError, DatasetReader, GazeSample
 from .engine import Engine
 from .errors import GazeAugError
 from .io_h5 import H5TrainingSet
+from .models import uses_face
 from .normalize import NormalizationSettings, NormalizedSample, gaze_direction, normalize_image
 from .train import angular_errors_deg, predict_arrays
 
@@ -98,8 +99,9 @@ def evaluate_h5(model: Any, path: str | Path) -> dict[str, Any]:
     """Errors on a normalized training-set file (angles between predicted and true gaze vectors)."""
     data = H5TrainingSet(path)
     errs, subj, preds, trues = [], [], [], []
-    for batch in data.batches(512):
-        pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"])
+    keys = (*H5TrainingSet.KEYS, "face") if uses_face(model) else H5TrainingSet.KEYS
+    for batch in data.batches(512, keys=keys):
+        pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], face=batch.get("face"))
         errs.append(angular_errors_deg(pred, batch["gaze"]))
         subj.append(batch["subject"])
         preds.append(pred)
@@ -131,7 +133,10 @@ def _predict_normalized(
     """(2,) float64 radians (pitch, yaw), face-centre normalized frame: the model's gaze; and the normalized sample."""
     sample = normalize_image(image, fit.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, settings=settings)
     assert sample.face is not None
-    pred = predict_arrays(model, sample.left.image[None], sample.right.image[None], sample.face.head_pose[None])[0]
+    face = None if sample.face.image is None else sample.face.image[None]
+    pred = predict_arrays(
+        model, sample.left.image[None], sample.right.image[None], sample.face.head_pose[None], face=face
+    )[0]
     return pred, sample
 
 

@@ -1,4 +1,7 @@
-"""ONNX export of a trained model (inputs ``left_eye``, ``right_eye``, ``head_pose``; output ``gaze``).
+"""ONNX export of a trained model (inputs ``left_eye``, ``right_eye``, ``head_pose`` [, ``face``]; output ``gaze``).
+
+A model that reads the normalized face patch (:func:`gazeaug.models.uses_face`) has the input ``face`` too,
+float32 (N, 3, Hf, Wf) prepared as the eyes are.
 
 Inputs are the *prepared* tensors of :func:`gazeaug.models.preprocess.prepare_inputs`
 (float32, eyes (N, 3, H, W) in [-1, 1], head pose (N, 2) radians); the batch
@@ -23,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import GazeAugError
-from .models import import_torch
+from .models import import_torch, uses_face
 from .normalize import NormalizationSettings
 
 __all__ = ["export_onnx"]
@@ -56,7 +59,14 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     for name, tensor in model.state_dict().items():
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise GazeAugError(f"not a usable gazeaug model: non-finite weights in {name}; nothing exported")
-    example = (torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w), torch.zeros(1, 2))
+    example: tuple[Any, ...] = (torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w), torch.zeros(1, 2))
+    names = ["left_eye", "right_eye", "head_pose"]
+    if uses_face(model):
+        face_size = NormalizationSettings.from_dict(meta.get("normalization") or {}).face_patch_size_wh
+        if face_size is None:
+            raise GazeAugError("the model reads a face patch, and its normalization makes none: nothing exported")
+        example = (*example, torch.zeros(1, 3, face_size[1], face_size[0]))
+        names.append("face")
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -64,9 +74,9 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
             model,
             example,
             buf,
-            input_names=["left_eye", "right_eye", "head_pose"],
+            input_names=names,
             output_names=["gaze"],
-            dynamic_axes={k: {0: "batch"} for k in ("left_eye", "right_eye", "head_pose", "gaze")},
+            dynamic_axes={k: {0: "batch"} for k in (*names, "gaze")},
             opset_version=opset,
             dynamo=False,
         )

@@ -23,6 +23,8 @@ key                       shape, dtype         meaning
 ``subject``               (N,) bytes           subject id
 ``source_index``          (N,) int64           the sample's index in its dataset
 ``sampled_yaw_pitch``     (N, 2) float32       the drawn (yaw, pitch) in degrees (NaN: not augmented)
+``face`` (optional)       (N, Hf, Wf, 3) uint8 the normalized face patch, RGB (face-centre camera, the
+                                               settings' ``face_patch_size_wh``; only when they ask for one)
 ``sources/index``         (M,) int64           every input sample that produced rows
 ``sources/labels``        (M, 2, 2) float32    its original (head pose, gaze) (pitch, yaw) rad, face frame
 ========================  ===================  ==================================================
@@ -91,10 +93,15 @@ def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_
     """Schema rows for the samples of one source image (each must have a gaze and face labels)."""
     if not samples:
         raise GazeAugError("no samples to write")
-    out: dict[str, list[Any]] = {k: [] for k in _DTYPES}
+    with_face = samples[0].face is not None and samples[0].face.image is not None
+    out: dict[str, list[Any]] = {k: [] for k in _dtypes(with_face)}
     for s in samples:
         if s.face is None or s.face.gaze is None or s.left.gaze is None or s.right.gaze is None:
             raise GazeAugError("training rows need a gaze label")
+        if (s.face.image is not None) != with_face:
+            raise GazeAugError("training rows: some samples have a face patch and some do not")
+        if s.face.image is not None:
+            out["face"].append(s.face.image)
         out["left_eye"].append(s.left.image)
         out["right_eye"].append(s.right.image)
         out["head_pose"].append(s.face.head_pose)
@@ -111,7 +118,7 @@ def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_
         out["source_index"].append(source_index)
         yp = s.meta.get("yaw_pitch_deg")
         out["sampled_yaw_pitch"].append(yp if yp is not None else [np.nan, np.nan])
-    return Rows({k: np.asarray(v, dtype=_DTYPES[k]) for k, v in out.items()})
+    return Rows({k: np.asarray(v, dtype=_dtypes(with_face)[k]) for k, v in out.items()})
 
 
 _DTYPES: dict[str, Any] = {
@@ -132,6 +139,15 @@ _DTYPES: dict[str, Any] = {
     "source_index": np.int64,
     "sampled_yaw_pitch": np.float32,
 }
+
+
+#: The image columns (not byte-shuffled before gzip).
+_IMAGE_KEYS = ("left_eye", "right_eye", "face")
+
+
+def _dtypes(with_face: bool) -> dict[str, Any]:
+    """The per-row keys and dtypes of a file: the schema's, and ``face`` when it has face patches."""
+    return {**_DTYPES, "face": np.uint8} if with_face else _DTYPES
 
 
 def _differences(what: str, then_json: Any, now_json: str) -> list[str]:
@@ -178,6 +194,7 @@ class H5Writer:
         path: the final output (``.h5``).
         attrs: file attributes (JSON-serialisable values; ``settings`` should hold every parameter).
         patch_size_wh: eye patch (width, height).
+        face_patch_size_wh: face patch (width, height) when rows carry one (the ``face`` column), else None.
         resume: continue an interrupted run's ``.part`` file (whose ``settings`` must match).
         overwrite: replace an existing complete output.
         compress: gzip the rows (default; off for the Ray engine's shards, which only live until merged).
@@ -193,12 +210,14 @@ class H5Writer:
         attrs: Mapping[str, Any],
         patch_size_wh: tuple[int, int],
         *,
+        face_patch_size_wh: tuple[int, int] | None = None,
         resume: bool = False,
         overwrite: bool = False,
         compress: bool = True,
     ):
         h5py = _import_h5py()
         self.path = Path(path)
+        self._dtypes = _dtypes(face_patch_size_wh is not None)
         check_output_state(self.path, resume=resume, overwrite=overwrite)
         self.part = part_path(self.path)
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
@@ -227,7 +246,7 @@ class H5Writer:
                     remedy="same_settings",
                 )
             done = int(self._f.attrs.get("rows_done", 0))
-            for k in _DTYPES:
+            for k in self._dtypes:
                 self._f[k].resize(done, axis=0)
             sources = int(self._f.attrs.get("sources_done", 0))
             for k in ("sources/index", "sources/labels"):
@@ -251,7 +270,9 @@ class H5Writer:
                 "subject": (),
                 "source_index": (),
             }
-            for k, dt in _DTYPES.items():
+            if face_patch_size_wh is not None:
+                shapes["face"] = (face_patch_size_wh[1], face_patch_size_wh[0], 3)
+            for k, dt in self._dtypes.items():
                 tail = shapes.get(k, (2,))
                 self._f.create_dataset(
                     k,
@@ -260,7 +281,7 @@ class H5Writer:
                     dtype=dt,
                     chunks=(_CHUNK, *tail),
                     **(
-                        {"compression": "gzip", "compression_opts": 1, "shuffle": k not in ("left_eye", "right_eye")}
+                        {"compression": "gzip", "compression_opts": 1, "shuffle": k not in _IMAGE_KEYS}
                         if compress
                         else {}
                     ),
@@ -310,7 +331,11 @@ class H5Writer:
         with h5py.File(path, "r") as f:
             if not f.attrs.get("complete", False):
                 raise GazeAugError(f"{path}: the shard is not complete")
-            arrays = {k: f[k][()] for k in _DTYPES}
+            if ("face" in f) != ("face" in self._dtypes):
+                raise GazeAugError(
+                    f"{path}: the shard {'has' if 'face' in f else 'lacks'} face patches, the output not"
+                )
+            arrays = {k: f[k][()] for k in self._dtypes}
             index, labels = f["sources/index"][()], f["sources/labels"][()]
             skipped = json.loads(f.attrs.get("skipped", "[]"))
             next_index = int(f.attrs["next_source_index"])
@@ -332,7 +357,7 @@ class H5Writer:
         if self._pending:
             n0 = self._rows_written
             n1 = n0 + sum(len(r) for r in self._pending)
-            for k, dt in _DTYPES.items():
+            for k, dt in self._dtypes.items():
                 ds = self._f[k]
                 ds.resize(n1, axis=0)
                 ds[n0:n1] = np.concatenate([np.asarray(r.arrays[k], dtype=dt) for r in self._pending])
@@ -431,6 +456,10 @@ def _check_schema(f: Any, path: Path) -> tuple[int, NDArray[np.float32]]:
     for k in ("head_pose", "gaze"):
         if f[k].shape != (n, 2):
             raise GazeAugError(f"{path}: {k} must be ({n}, 2), got {f[k].shape}")
+    if "face" in f:
+        face_shape = f["face"].shape
+        if len(face_shape) != 4 or face_shape[0] != n or face_shape[3] != 3:
+            raise GazeAugError(f"{path}: face patches must be ({n}, H, W, 3), got {face_shape}")
     for k in REQUIRED_KEYS:
         _check_rows(f, path, k, n)
     labels = np.concatenate([f["head_pose"][()], f["gaze"][()]], axis=1)
@@ -473,6 +502,7 @@ class H5TrainingSet:
         rows: (K,) int64, the file's row indices in use, increasing.
         subjects: (N,) str, the subject of every row of the file.
         patch_size_wh: eye patch (width, height), pixels.
+        face_patch_size_wh: face patch (width, height), pixels, when the rows carry one (``face``); else None.
         attrs: the file attributes (``settings`` and ``skipped`` decoded from JSON).
         settings: the run's parameters (``attrs["settings"]``; {} when absent).
         fingerprint: ``"K rows, sha1 HEX"``: the rows in use and a SHA-1 of their labels (head pose
@@ -506,6 +536,7 @@ class H5TrainingSet:
         with f, _reading(self.path):
             n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]
+            face_shape = f["face"].shape[1:] if "face" in f else None
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
             self.attrs = _decode_attrs(f.attrs)
             raw_settings = f.attrs.get("settings")
@@ -525,6 +556,7 @@ class H5TrainingSet:
             raise GazeAugError(f"{self.path}: no rows to use (after the subject selection)")
         self.subjects = subj
         self.patch_size_wh = (int(eye_shape[1]), int(eye_shape[0]))
+        self.face_patch_size_wh = None if face_shape is None else (int(face_shape[1]), int(face_shape[0]))
         self.settings: dict[str, Any] = _settings_attr(raw_settings, self.path)
         self._labels = labels
 
@@ -562,29 +594,38 @@ class H5TrainingSet:
         out["attrs"] = dict(self.attrs)
         return out
 
-    def batches(self, batch_size: int, rng: np.random.Generator | None = None) -> Iterator[dict[str, NDArray[Any]]]:
-        """Batches of the rows in use: :attr:`KEYS` as numpy arrays of B rows (the last batch may be shorter).
+    def batches(
+        self, batch_size: int, rng: np.random.Generator | None = None, keys: Sequence[str] | None = None
+    ) -> Iterator[dict[str, NDArray[Any]]]:
+        """Batches of the rows in use: ``keys`` (default :attr:`KEYS`), numpy arrays of B rows (the last may be fewer).
 
         ``left_eye``, ``right_eye``: (B, H, W, 3) uint8 RGB; ``head_pose``, ``gaze``: (B, 2) float32,
-        (pitch, yaw) radians, face-centre normalized frame; ``subject``: (B,) str.
+        (pitch, yaw) radians, face-centre normalized frame; ``subject``: (B,) str; ``face`` (when
+        asked for): (B, Hf, Wf, 3) uint8 RGB.
 
         With ``rng``, blocks of rows come in a random order and are shuffled
         within (streaming shuffle); without, in file order.
+
+        Raises:
+            GazeAugError: a key the file lacks (``face`` in a file made without face patches).
         """
         h5py = _import_h5py()
+        wanted = tuple(keys) if keys is not None else self.KEYS
+        if "face" in wanted and self.face_patch_size_wh is None:
+            raise GazeAugError(f"{self.path}: no face patches (made without --face-patch)")
         blocks = [self.rows[i : i + _BLOCK] for i in range(0, len(self.rows), _BLOCK)]
         order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
-        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in self.KEYS}
+        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
         carried = 0
         with h5py.File(self.path, "r") as f:
             for b in order:
                 idx = blocks[b]
                 lo, hi = int(idx[0]), int(idx[-1]) + 1
                 sel = idx - lo
-                data = {k: f[k][lo:hi][sel] for k in self.KEYS if k != "subject"}
+                data = {k: f[k][lo:hi][sel] for k in wanted if k != "subject"}
                 data["subject"] = self.subjects[idx]
                 perm = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))
-                for k in self.KEYS:
+                for k in wanted:
                     carry[k].append(data[k][perm])
                 carried += len(idx)
                 while carried >= batch_size:

@@ -347,6 +347,10 @@ def shard_dir(output: str | Path) -> Path:
     return p.with_name(p.name + ".shards")
 
 
+#: (eye patch (width, height), face patch (width, height) or None), pixels.
+_PatchSizes = tuple[tuple[int, int], tuple[int, int] | None]
+
+
 @dataclass(frozen=True)
 class _ShardTask:
     """One block for a Ray actor: samples ``first`` to ``stop - 1``, written to ``path`` (see :func:`_ray_work`)."""
@@ -356,7 +360,7 @@ class _ShardTask:
     samples: list[GazeSample]
     path: str
     attrs: dict[str, Any]
-    patch_size_wh: tuple[int, int]
+    patch_sizes: _PatchSizes
 
 
 def _shard_matches(path: Path, attrs: dict[str, Any]) -> bool:
@@ -396,7 +400,10 @@ def _ray_work(task: _ShardTask) -> dict[str, Any]:
     # A name of its own for this attempt: an actor presumed lost that is still writing never
     # shares a file with the one redoing its block (both write the same rows; the last rename wins).
     mine = path.with_name(f"{path.stem}.{uuid.uuid4().hex[:12]}.h5")
-    writer = H5Writer(mine, task.attrs, task.patch_size_wh, compress=False)  # read once by the driver, then deleted
+    eyes, face = task.patch_sizes
+    writer = H5Writer(
+        mine, task.attrs, eyes, face_patch_size_wh=face, compress=False
+    )  # read once by the driver, then deleted
     try:
         for outcome in _process_stream(task.samples):
             if outcome.skipped is not None:  # where it failed: a path one node cannot see is named with it
@@ -413,20 +420,18 @@ def _ray_work(task: _ShardTask) -> dict[str, Any]:
 
 
 def _ray_blocks(
-    samples: Iterable[GazeSample], size: int, shards: Path, attrs: dict[str, Any], patch_size_wh: tuple[int, int]
+    samples: Iterable[GazeSample], size: int, shards: Path, attrs: dict[str, Any], patch_sizes: _PatchSizes
 ) -> Iterator[tuple[int, _ShardTask]]:
     """Blocks of consecutive samples, cut at multiples of ``size`` (so a resumed run cuts the same shards)."""
     groups = itertools.groupby(samples, key=lambda s: s.source_index // size)
     for b, (_, group) in enumerate(groups):
-        yield b, _shard_task(list(group), shards, attrs, patch_size_wh)
+        yield b, _shard_task(list(group), shards, attrs, patch_sizes)
 
 
-def _shard_task(
-    chunk: list[GazeSample], shards: Path, attrs: dict[str, Any], patch_size_wh: tuple[int, int]
-) -> _ShardTask:
+def _shard_task(chunk: list[GazeSample], shards: Path, attrs: dict[str, Any], patch_sizes: _PatchSizes) -> _ShardTask:
     first, stop = chunk[0].source_index, chunk[-1].source_index + 1
     path = shards / f"samples-{first:09d}-{stop:09d}.h5"
-    return _ShardTask(first, stop, chunk, str(path), {**attrs, "shard": {"first": first, "stop": stop}}, patch_size_wh)
+    return _ShardTask(first, stop, chunk, str(path), {**attrs, "shard": {"first": first, "stop": stop}}, patch_sizes)
 
 
 def check_redirectable(reader: DatasetReader) -> None:
@@ -544,7 +549,15 @@ def _run_dataset(
         },
     }
     with output_lock(out):  # held for the whole run: a second run is told this one is writing
-        writer = H5Writer(out, attrs, settings.normalization.patch_size_wh, resume=resume, overwrite=overwrite)
+        norm = settings.normalization
+        writer = H5Writer(
+            out,
+            attrs,
+            norm.patch_size_wh,
+            face_patch_size_wh=norm.face_patch_size_wh,
+            resume=resume,
+            overwrite=overwrite,
+        )
         start = writer.next_source_index
         todo = (s for s in reader if start <= s.source_index < total)
         bar = None
@@ -581,7 +594,9 @@ def _run_dataset(
                 if engine.kind == "ray":
                     from .engine import map_blocks
 
-                    blocks = _ray_blocks(todo, engine.block_size, shards, attrs, settings.normalization.patch_size_wh)
+                    blocks = _ray_blocks(
+                        todo, engine.block_size, shards, attrs, (norm.patch_size_wh, norm.face_patch_size_wh)
+                    )
                     map_blocks(
                         engine, blocks, _ray_work, _ray_setup, (settings,), on_result=merge, interrupted=interrupted
                     )

@@ -45,6 +45,7 @@ __all__ = [
     "NormalizedSample",
     "reference_points",
     "views_at",
+    "face_patch_camera",
     "samples_from_views",
     "source_coordinates",
     "normalize_image",
@@ -69,28 +70,58 @@ class NormalizationSettings:
             in memory per pose and per eye).
         antialias: sample a Gaussian pyramid per pixel's footprint (default True);
             False samples the full-resolution image bilinearly, like ``cv2.warpPerspective``.
+        face_patch_size_wh: (width, height) in pixels of a normalized *face* patch made beside the
+            eyes, or None (default): no face patch. The face camera looks at the face centre with the
+            face frame's rotation (the one the labels are in) and its own distance and focal below;
+            ETH-XGaze's face patches are 224 x 224.
+        face_distance_mm: the face camera's d_n (default 600 mm, ETH-XGaze's ``normalize_data.py``).
+        face_focal_px: the face camera's f_n (default 960 px, ETH-XGaze's): at 600 mm a 224 px patch
+            spans 140 mm, the face from brow to chin. Both face fields are recorded, and may differ from
+            the defaults, only with a face patch.
 
     Raises:
         GazeAugError: a field of the wrong type (a bool or text for a number, a float for a patch
-            side, a non-bool ``antialias``) or out of bounds.
+            side, a non-bool ``antialias``) or out of bounds; a face camera set without a face patch.
     """
 
     distance_mm: float = 600.0
     focal_px: float = 650.0
     patch_size_wh: tuple[int, int] = (60, 36)
     antialias: bool = True
+    face_patch_size_wh: tuple[int, int] | None = None
+    face_distance_mm: float = 600.0
+    face_focal_px: float = 960.0
 
     #: Allowed patch width and height, pixels.
     PATCH_SIDE_RANGE: ClassVar[tuple[int, int]] = (4, 1024)
 
     def __post_init__(self) -> None:
-        for name in ("distance_mm", "focal_px"):
+        for name in ("distance_mm", "focal_px", "face_distance_mm", "face_focal_px"):
             v = getattr(self, name)
             if not (_is_number(v) and math.isfinite(v) and v > 0):
                 raise GazeAugError(f"normalization {name}: expected a finite number > 0, got {v!r}")
             object.__setattr__(self, name, float(v))
-        lo, hi = self.PATCH_SIDE_RANGE
-        size = self.patch_size_wh
+        object.__setattr__(self, "patch_size_wh", self._checked_size("patch size", self.patch_size_wh))
+        if not isinstance(self.antialias, (bool, np.bool_)):
+            raise GazeAugError(f"normalization antialias: expected true or false, got {self.antialias!r}")
+        object.__setattr__(self, "antialias", bool(self.antialias))
+        if self.face_patch_size_wh is not None:
+            object.__setattr__(
+                self, "face_patch_size_wh", self._checked_size("face patch size", self.face_patch_size_wh)
+            )
+        elif (self.face_distance_mm, self.face_focal_px) != (
+            _FACE_DEFAULTS["face_distance_mm"],
+            _FACE_DEFAULTS["face_focal_px"],
+        ):
+            raise GazeAugError(
+                "normalization: a face camera distance or focal was given without a face patch size "
+                f"(face_distance_mm {self.face_distance_mm:g}, face_focal_px {self.face_focal_px:g})"
+            )
+
+    @classmethod
+    def _checked_size(cls, what: str, size: Any) -> tuple[int, int]:
+        """``(width, height)`` as two ints within :attr:`PATCH_SIDE_RANGE`, else the error naming ``what``."""
+        lo, hi = cls.PATCH_SIDE_RANGE
         if not (
             isinstance(size, (tuple, list, np.ndarray))
             and len(size) == 2
@@ -98,12 +129,9 @@ class NormalizationSettings:
         ):
             shown = size.tolist() if isinstance(size, np.ndarray) else size
             raise GazeAugError(
-                f"patch size: expected two integers (width, height), each from {lo} to {hi} px, got {shown!r}"
+                f"{what}: expected two integers (width, height), each from {lo} to {hi} px, got {shown!r}"
             )
-        object.__setattr__(self, "patch_size_wh", (int(size[0]), int(size[1])))
-        if not isinstance(self.antialias, (bool, np.bool_)):
-            raise GazeAugError(f"normalization antialias: expected true or false, got {self.antialias!r}")
-        object.__setattr__(self, "antialias", bool(self.antialias))
+        return (int(size[0]), int(size[1]))
 
     @classmethod
     def from_dict(cls, data: Any) -> NormalizationSettings:
@@ -126,10 +154,23 @@ class NormalizationSettings:
         return cls(**{str(k): v for k, v in data.items()})
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-serialisable form, as recorded in outputs."""
+        """JSON-serialisable form, as recorded in outputs.
+
+        Without a face patch the face keys are left out, so the record is the one every output made
+        before face patches existed carries (a resumed run or a model compares records).
+        """
         d = asdict(self)
         d["patch_size_wh"] = list(self.patch_size_wh)
+        if self.face_patch_size_wh is None:
+            for k in _FACE_DEFAULTS:
+                del d[k]
+        else:
+            d["face_patch_size_wh"] = list(self.face_patch_size_wh)
         return d
+
+
+#: The face fields' defaults (left out of a record without a face patch).
+_FACE_DEFAULTS: dict[str, Any] = {"face_patch_size_wh": None, "face_distance_mm": 600.0, "face_focal_px": 960.0}
 
 
 def _is_number(v: Any) -> bool:
@@ -173,11 +214,16 @@ class FaceLabels:
         camera: the face's normalized camera (the eye patch size; only its rotation matters here).
         head_pose: (2,) float64 radians, (pitch, yaw).
         gaze: (2,) float64 radians, (pitch, yaw) of ``target - face centre`` (or the gaze vector); ``None`` if unknown.
+        image: (H, W, 3) uint8 RGB face patch (H, W from the settings' ``face_patch_size_wh``), seen
+            by :func:`face_patch_camera` of ``camera``; ``None`` when the settings ask for no face patch.
+        coverage: fraction of the face patch's pixels that saw the head (1.0 for a real image).
     """
 
     camera: NormalizedCamera
     head_pose: NDArray[np.float64]
     gaze: NDArray[np.float64] | None = None
+    image: NDArray[np.uint8] | None = None
+    coverage: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -244,6 +290,31 @@ def views_at(
     )
 
 
+def face_patch_camera(face_camera: NormalizedCamera, settings: NormalizationSettings) -> NormalizedCamera:
+    """The camera of the face patch: the face frame's camera with the settings' face distance, focal and size.
+
+    Convention: the kernel's face camera (:func:`gazeaug.camera.normalized_views`, third of each
+    pose) defines the face frame the labels are in; the face patch is seen from the same rotation
+    and reference point (the face centre), so its pixels and the labels share one frame.
+
+    Args:
+        face_camera: the kernel's face camera of one pose.
+        settings: with ``face_patch_size_wh`` set.
+
+    Raises:
+        GazeAugError: the settings ask for no face patch.
+    """
+    if settings.face_patch_size_wh is None:
+        raise GazeAugError("face patch camera: the normalization settings ask for no face patch (face_patch_size_wh)")
+    return NormalizedCamera(
+        rotation=face_camera.rotation,
+        reference_mm=face_camera.reference_mm,
+        distance_mm=settings.face_distance_mm,
+        focal_px=settings.face_focal_px,
+        size_wh=settings.face_patch_size_wh,
+    )
+
+
 def samples_from_views(
     views: NormalizedViews,
     patches: NDArray[np.uint8],
@@ -253,6 +324,8 @@ def samples_from_views(
     *,
     coverage: ArrayLike | None = None,
     metas: Sequence[Mapping[str, Any]] | None = None,
+    face_patches: NDArray[np.uint8] | None = None,
+    face_coverage: ArrayLike | None = None,
 ) -> list[NormalizedSample]:
     """One :class:`NormalizedSample` per pose: the kernel's cameras and labels with the patches sampled through them.
 
@@ -264,8 +337,23 @@ def samples_from_views(
         source: ``"normalize"`` or ``"render:<renderer>"``.
         coverage: (P, 2) float, fraction of each patch that saw the face (default 1.0).
         metas: P dicts of extras (default empty).
+        face_patches: (P, Hf, Wf, 3) uint8 RGB face patches (:func:`face_patch_camera`), given exactly
+            when ``settings.face_patch_size_wh`` is set.
+        face_coverage: (P,) float, fraction of each face patch that saw the head (default 1.0).
+
+    Raises:
+        GazeAugError: face patches given without the settings asking for them, or missing, or of another size.
     """
     n = len(views)
+    want = settings.face_patch_size_wh
+    if (face_patches is None) != (want is None):
+        raise GazeAugError(
+            f"face patches: the settings ask for {'none' if want is None else f'{want[0]} x {want[1]} px'}, "
+            f"got {'none' if face_patches is None else 'some'}"
+        )
+    if face_patches is not None and want is not None and face_patches.shape != (n, want[1], want[0], 3):
+        raise GazeAugError(f"face patches: expected shape {(n, want[1], want[0], 3)}, got {face_patches.shape}")
+    face_cov = np.ones(n) if face_coverage is None else np.asarray(face_coverage, dtype=np.float64).reshape(n)
     cov = np.ones((n, 2)) if coverage is None else np.asarray(coverage, dtype=np.float64).reshape(n, 2)
     rot = np.asarray(head_rotations, dtype=np.float64).reshape(n, 3, 3)
     gaze = views.gaze
@@ -282,7 +370,11 @@ def samples_from_views(
             for j in range(2)
         ]
         face = FaceLabels(
-            camera=views.cameras[i][2], head_pose=views.head_pose[i, 2], gaze=None if gaze is None else gaze[i, 2]
+            camera=views.cameras[i][2],
+            head_pose=views.head_pose[i, 2],
+            gaze=None if gaze is None else gaze[i, 2],
+            image=None if face_patches is None else np.ascontiguousarray(face_patches[i]),
+            coverage=float(face_cov[i]),
         )
         out.append(
             NormalizedSample(
@@ -390,15 +482,26 @@ def normalize_image(
         gaze_vector=gaze_vector,
     )
     coords = np.stack([source_coordinates(cam, camera) for cam in views.cameras[0][:2]])
+    face_coords = None
+    if s.face_patch_size_wh is not None:
+        face_coords = source_coordinates(face_patch_camera(views.cameras[0][2], s), camera)[None]
     if pyramid is not None:
         pyr = pyramid
-    else:  # only the region around the eyes (the same samples, a fraction of the work)
-        pyr, origin = region_pyramid(img, coords)
+    else:  # only the region the patches read (the same samples, a fraction of the work)
+        reads = coords if face_coords is None else np.concatenate([coords.reshape(-1, 2), face_coords.reshape(-1, 2)])
+        pyr, origin = region_pyramid(img, reads)
         coords -= np.asarray(origin, dtype=np.float32)
+        if face_coords is not None:
+            face_coords -= np.asarray(origin, dtype=np.float32)
     valid = np.ones(coords.shape[:3], dtype=bool)
     patches = sample(pyr, coords, valid, antialias=s.antialias, dtype=np.uint8)
+    face = None
+    if face_coords is not None:
+        face = sample(
+            pyr, face_coords, np.ones(face_coords.shape[:3], dtype=bool), antialias=s.antialias, dtype=np.uint8
+        )
     return samples_from_views(
-        views, patches[None], s, np.asarray(pose.rotation)[None], "normalize", metas=[meta or {}]
+        views, patches[None], s, np.asarray(pose.rotation)[None], "normalize", metas=[meta or {}], face_patches=face
     )[0]
 
 
@@ -412,7 +515,9 @@ def save_npz(path: str | Path, sample_: NormalizedSample) -> None:
     when a gaze is known; ``head_rotation`` (3, 3); ``distance_mm``, ``focal_px``,
     ``patch_size_wh``, ``antialias``, ``source`` (``normalize`` or ``render:<renderer>``),
     ``head_pose_face``, ``gaze_face``, ``R_norm_face``, ``face_centre_mm`` (the face centre's normalized frame),
-    ``coverage_left``, ``coverage_right``, and ``meta_json`` (a JSON string of the extras).
+    ``coverage_left``, ``coverage_right``, ``face`` (Hf, Wf, 3) uint8 RGB and ``coverage_face``
+    when the settings made a face patch (with ``face_patch_size_wh``, ``face_distance_mm``,
+    ``face_focal_px``), and ``meta_json`` (a JSON string of the extras).
     """
     import json
 
@@ -434,7 +539,16 @@ def save_npz(path: str | Path, sample_: NormalizedSample) -> None:
         arrays["face_centre_mm"] = sample_.face.camera.reference_mm
         if sample_.face.gaze is not None:
             arrays["gaze_face"] = sample_.face.gaze
+        if sample_.face.image is not None:
+            arrays["face"] = sample_.face.image
+            arrays["coverage_face"] = np.float64(sample_.face.coverage)
     s = sample_.settings
+    if s.face_patch_size_wh is not None:
+        arrays.update(
+            face_patch_size_wh=np.array(s.face_patch_size_wh, dtype=np.int64),
+            face_distance_mm=np.float64(s.face_distance_mm),
+            face_focal_px=np.float64(s.face_focal_px),
+        )
     arrays.update(
         head_rotation=sample_.head_rotation,
         distance_mm=np.float64(s.distance_mm),

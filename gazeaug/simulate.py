@@ -849,10 +849,56 @@ class SimSubject:
             (C, H, W, 3) uint8 RGB patches (misses inpainted) and (C,) float64 coverage: the share of
             each patch's rays that hit the head (face, rings, eyes): of its pixels when ``supersample`` is 1.
         """
+        [out] = self.render_patch_groups(
+            head_rotation,
+            head_translation_mm,
+            target_mm,
+            [(cameras, eye_blur_px)],
+            antialias=antialias,
+            supersample=supersample,
+            threads=threads,
+            rng=rng,
+        )
+        return out
+
+    def render_patch_groups(
+        self,
+        head_rotation: NDArray[np.float64],
+        head_translation_mm: NDArray[np.float64],
+        target_mm: NDArray[np.float64],
+        groups: Sequence[tuple[Sequence[Any], float]],
+        *,
+        antialias: bool = True,
+        supersample: int = 1,
+        threads: int = 0,
+        rng: np.random.Generator | None = None,
+    ) -> list[tuple[NDArray[np.uint8], NDArray[np.float64]]]:
+        """:meth:`render_patches` for groups of cameras of different patch sizes, all from one posed scene.
+
+        One light is drawn (with ``rng``) for the pose and every group is seen under it: the eye
+        patches and the face patch of a sample show the same lighting.
+
+        Args:
+            head_rotation: (3, 3) head frame -> camera frame.
+            head_translation_mm: (3,) mm, camera frame.
+            target_mm: (3,) mm, camera frame: the point both eyes fixate.
+            groups: ``(cameras, eye_blur_px)`` pairs: cameras of one patch size, and the blur over
+                the eyeballs' pixels in that group's pixels (see :meth:`render_patches`).
+            antialias: as :meth:`render_patches`.
+            supersample: as :meth:`render_patches`.
+            threads: as :meth:`render_patches`.
+            rng: draws the one light of the pose (None: unlit).
+
+        Returns:
+            One ``(patches, coverage)`` pair per group, as :meth:`render_patches` returns them.
+        """
         from .render.base import View, fill_misses, view_rays_packed
         from .render.shaders import MipTextureShader
         from .texture import build_pyramid
 
+        ss = int(supersample)
+        if ss < 1:
+            raise GazeAugError(f"supersample: expected an integer >= 1, got {supersample!r}")
         if self._mip_shader is None or self._mip_shader.antialias != antialias:
             th, tw = self.texture.shape[:2]
             table = TexelTable(self.photo.uv, self.triangles, (tw, th))
@@ -860,33 +906,33 @@ class SimSubject:
         scene = self._posed_scene(
             head_rotation, head_translation_mm, target_mm, rng, face_shader=self._mip_shader, threads=threads
         )
-        ss = int(supersample)
-        if ss < 1:
-            raise GazeAugError(f"supersample: expected an integer >= 1, got {supersample!r}")
-        views = [View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras]
-        rays = view_rays_packed(views, ss)
-        fragments = scene.caster.trace(rays)
-        colour = shade(fragments, rays, scene.shaders)
-        hit_rays, eye_rays = fragments.hit, fragments.hit & ~fragments.of_mesh(0)
-        if ss == 1:
-            cover, eyes = hit_rays.astype(np.float64), eye_rays
-        else:  # each pixel: the mean of its s x s rays that hit something
-            p, hs, ws = hit_rays.shape
+        results = []
+        for cameras, eye_blur_px in groups:
+            views = [View(camera=c, rotation=np.eye(3), translation_mm=np.zeros(3)) for c in cameras]
+            rays = view_rays_packed(views, ss)
+            fragments = scene.caster.trace(rays)
+            colour = shade(fragments, rays, scene.shaders)
+            hit_rays, eye_rays = fragments.hit, fragments.hit & ~fragments.of_mesh(0)
+            if ss == 1:
+                cover, eyes = hit_rays.astype(np.float64), eye_rays
+            else:  # each pixel: the mean of its s x s rays that hit something
+                p, hs, ws = hit_rays.shape
 
-            def pixels(a: NDArray[Any]) -> NDArray[Any]:
-                return a.reshape(p, hs // ss, ss, ws // ss, ss, *a.shape[3:]).mean(axis=(2, 4))
+                def pixels(a: NDArray[Any], p: int = p, hs: int = hs, ws: int = ws) -> NDArray[Any]:
+                    return a.reshape(p, hs // ss, ss, ws // ss, ss, *a.shape[3:]).mean(axis=(2, 4))
 
-            cover = pixels(hit_rays.astype(np.float64))
-            colour = pixels(colour * hit_rays[..., None]) / np.maximum(cover, 1e-9)[..., None]
-            eyes = pixels(eye_rays.astype(np.float64)) > 0
-        out = fill_misses(colour, cover > 0)
-        if eye_blur_px > 0:
-            import cv2
+                cover = pixels(hit_rays.astype(np.float64))
+                colour = pixels(colour * hit_rays[..., None]) / np.maximum(cover, 1e-9)[..., None]
+                eyes = pixels(eye_rays.astype(np.float64)) > 0
+            out = fill_misses(colour, cover > 0)
+            if eye_blur_px > 0:
+                import cv2
 
-            for i in np.flatnonzero(eyes.reshape(len(eyes), -1).any(axis=1)):
-                soft = cv2.GaussianBlur(out[i], (0, 0), float(eye_blur_px))
-                out[i][eyes[i]] = soft[eyes[i]]
-        return out, cover.reshape(len(cover), -1).mean(axis=1)
+                for i in np.flatnonzero(eyes.reshape(len(eyes), -1).any(axis=1)):
+                    soft = cv2.GaussianBlur(out[i], (0, 0), float(eye_blur_px))
+                    out[i][eyes[i]] = soft[eyes[i]]
+            results.append((out, cover.reshape(len(cover), -1).mean(axis=1)))
+        return results
 
     def render(
         self,

@@ -629,7 +629,10 @@ class _FrameGaze:
             return row, drawn
         timer.lap("normalize")
         assert sample.face is not None
-        pred = self.estimator.predict(sample.left.image[None], sample.right.image[None], sample.face.head_pose[None])[0]
+        face_patch = None if sample.face.image is None else sample.face.image[None]
+        pred = self.estimator.predict(
+            sample.left.image[None], sample.right.image[None], sample.face.head_pose[None], face_patch
+        )[0]
         row["_model_pitchyaw"], row["_normalized_camera"] = pred, sample.face.camera  # for calibrate (not written)
         if self.calibration is not None:
             pred = self.calibration.apply(pred)

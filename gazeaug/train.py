@@ -36,7 +36,7 @@ from . import __version__
 from .background import interrupt_between_steps
 from .errors import GazeAugError
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
-from .models import create_model, import_torch
+from .models import create_model, import_torch, uses_face
 from .models.preprocess import (
     check_input_mode,
     input_mode_from_record,
@@ -229,6 +229,7 @@ def predict_arrays(
     head_pose: NDArray[Any],
     batch_size: int = 512,
     input_mode: str | None = None,
+    face: NDArray[np.uint8] | None = None,
 ) -> NDArray[np.float64]:
     """Gaze (N, 2) float64 radians (pitch, yaw), face frame, for eye patches and head poses.
 
@@ -240,17 +241,28 @@ def predict_arrays(
         batch_size: samples per forward pass.
         input_mode: the model's input mode; default: the one :func:`load_model` attached to the model
             (``rgb`` for a model built otherwise).
+        face: (N, Hf, Wf, 3) uint8 RGB face patches: needed by a model that reads them
+            (:func:`gazeaug.models.uses_face`), ignored by one that does not.
+
+    Raises:
+        GazeAugError: a model that reads face patches given none.
     """
     torch = import_torch()
     mode = input_mode_of(model) if input_mode is None else check_input_mode(input_mode)
+    if not uses_face(model):
+        face = None
+    elif face is None:
+        raise GazeAugError("the model reads a normalized face patch as well, and none was given")
     device = next(model.parameters()).device
     out = []
     model.eval()
     with torch.no_grad():
         for i in range(0, len(left), batch_size):
             sl = slice(i, i + batch_size)
-            a, b, c = prepare_inputs(left[sl], right[sl], head_pose[sl], mode, device=device)
-            out.append(model(a, b, c).float().cpu().numpy())
+            inputs = prepare_inputs(
+                left[sl], right[sl], head_pose[sl], mode, device=device, face=None if face is None else face[sl]
+            )
+            out.append(model(*inputs).float().cpu().numpy())
     return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 2))
 
 
@@ -261,6 +273,7 @@ def prefetch_batches(
     *,
     depth: int = PREFETCH,
     pin: bool = False,
+    face: bool = False,
 ) -> Generator[tuple[dict[str, NDArray[Any]], dict[str, Any]], None, None]:
     """:meth:`H5TrainingSet.batches`, read ``depth`` batches ahead by a background thread.
 
@@ -273,7 +286,8 @@ def prefetch_batches(
         ``(batch, tensors)``: ``batch`` as :meth:`H5TrainingSet.batches` yields it (numpy, B rows);
         ``tensors`` the CPU torch tensors the training moves to its device: ``eyes`` uint8
         (2B, H, W, 3), the left eyes then the right eyes, RGB; ``head_pose`` and ``gaze`` float32
-        (B, 2) radians (pitch, yaw). In pinned memory with ``pin`` (for CUDA's asynchronous copies).
+        (B, 2) radians (pitch, yaw); with ``face``, ``face`` uint8 (B, Hf, Wf, 3) RGB as well (the
+        batch then holds it too). In pinned memory with ``pin`` (for CUDA's asynchronous copies).
     """
     torch = import_torch()
 
@@ -282,21 +296,25 @@ def prefetch_batches(
         return t.pin_memory() if pin else t
 
     def tensors(batch: dict[str, NDArray[Any]]) -> dict[str, Any]:
-        return {
+        out = {
             "eyes": tensor(np.concatenate([batch["left_eye"], batch["right_eye"]])),
             "head_pose": tensor(batch["head_pose"].astype(np.float32, copy=False)),
             "gaze": tensor(batch["gaze"].astype(np.float32, copy=False)),
         }
+        if face:
+            out["face"] = tensor(batch["face"])
+        return out
 
+    keys = (*H5TrainingSet.KEYS, "face") if face else H5TrainingSet.KEYS
     if depth <= 0:
-        with contextlib.closing(data.batches(batch_size, rng)) as it:  # type: ignore[type-var]
+        with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
             for batch in it:
                 yield batch, tensors(batch)
         return
     from .background import read_ahead
 
     def produce() -> Iterator[tuple[dict[str, NDArray[Any]], dict[str, Any]]]:
-        with contextlib.closing(data.batches(batch_size, rng)) as it:  # type: ignore[type-var]
+        with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
             for batch in it:
                 yield batch, tensors(batch)
 
@@ -305,7 +323,7 @@ def prefetch_batches(
 
 def train_inputs(
     tensors: dict[str, Any], device: Any, augment: TrainAugment, input_mode: str, generator: Any
-) -> tuple[Any, Any, Any, Any]:
+) -> tuple[Any, Any, Any, Any, Any]:
     """A prefetched batch (:func:`prefetch_batches`) -> the model's inputs and target, on ``device``.
 
     The eye patches travel as uint8 (asynchronously from pinned memory); a share of the samples
@@ -316,23 +334,31 @@ def train_inputs(
     (:func:`gazeaug.models.preprocess.scale_eyes`) on the device.
 
     Returns:
-        left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians.
+        left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians;
+        face: float32 (B, 3, Hf, Wf) in [-1, 1] when the batch has face patches (augmented after
+        the eyes, with draws of its own), else None.
     """
     torch = import_torch()
     eyes = tensors["eyes"].to(device, non_blocking=True)
     head = tensors["head_pose"].to(device, non_blocking=True)
     gaze = tensors["gaze"].to(device, non_blocking=True)
+    face = tensors["face"].to(device, non_blocking=True) if "face" in tensors else None
     with torch.no_grad():
-        eyes, head, gaze = mirror_samples(eyes, head, gaze, augment, generator)
+        eyes, head, gaze, face = mirror_samples(eyes, head, gaze, augment, generator, face=face)
         x = scale_eyes(augment_eyes(eyes, augment, generator), input_mode)
+        if face is not None:
+            face = scale_eyes(augment_eyes(face, augment, generator), input_mode)
     n = x.shape[0] // 2
-    return x[:n], x[n:], head, gaze
+    return x[:n], x[n:], head, gaze, face
 
 
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
     errs = []
-    for batch in data.batches(batch_size):
-        pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], batch_size)
+    keys = (*H5TrainingSet.KEYS, "face") if uses_face(model) else H5TrainingSet.KEYS
+    for batch in data.batches(batch_size, keys=keys):
+        pred = predict_arrays(
+            model, batch["left_eye"], batch["right_eye"], batch["head_pose"], batch_size, face=batch.get("face")
+        )
         errs.append(angular_errors_deg(pred, batch["gaze"]))
     return float(np.concatenate(errs).mean())
 
@@ -441,7 +467,8 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     Raises:
         GazeAugError: missing, unreadable, truncated, crafted or not a gazeaug model; an unknown
             input preprocessing; non-finite weights; unusable ``normalization`` or ``patch_size_wh``;
-            a ``prediction`` entry that is not ``{"mirror_average": bool}``.
+            a ``prediction`` entry that is not ``{"mirror_average": bool}``; a model that reads a face
+            patch whose normalization makes none.
     """
     p = Path(path)
     obj = _load_plain(p, "gazeaug model")
@@ -463,6 +490,8 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     except TypeError as exc:
         raise GazeAugError(f"{p}: model {name!r} does not take the options {options} ({exc})") from exc
     _load_weights(model, state, p, f"gazeaug model ({name})")
+    if uses_face(model) and normalization.face_patch_size_wh is None:
+        raise GazeAugError(f"{p}: the model reads a face patch, and its normalization makes none (face_patch_size_wh)")
     mirror = _mirror_average(obj.get("prediction", {}), p)
     if mirror:
         from .models.mirror import mirror_averaged
@@ -637,6 +666,14 @@ def _train(
     torch.manual_seed(s.seed)
     device = _device(s.device)
     model = create_model(s.model, **s.model_options).to(device)
+    face = uses_face(model)
+    if face:  # the face patches come from the training set, made as test time makes them
+        for what in (data, val):
+            if what is not None and what.face_patch_size_wh is None:
+                raise GazeAugError(
+                    f"{what.path}: the model reads a normalized face patch, and this set has none "
+                    "(make it with --face-patch W H)"
+                )
     opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
     steps_per_epoch = math.ceil(len(data) / batch_size)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(
@@ -718,12 +755,14 @@ def _train(
             model.train()
             t0 = time.perf_counter()
             losses, preds, gazes, sizes = [], [], [], []
-            with contextlib.closing(prefetch_batches(data, batch_size, rng, depth=PREFETCH, pin=cuda)) as batches:
+            with contextlib.closing(
+                prefetch_batches(data, batch_size, rng, depth=PREFETCH, pin=cuda, face=face)
+            ) as batches:
                 for step, (batch, tensors) in enumerate(batches):
                     n = len(batch["gaze"])
-                    a, b, c, y = train_inputs(tensors, device, s.augment, s.input_mode, gen)
+                    a, b, c, y, f = train_inputs(tensors, device, s.augment, s.input_mode, gen)
                     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
-                        pred = model(a, b, c)
+                        pred = model(a, b, c) if f is None else model(a, b, c, f)
                     loss = (pred.float() - y).abs().mean()
                     opt.zero_grad(set_to_none=True)
                     loss.backward()

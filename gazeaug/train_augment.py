@@ -226,7 +226,9 @@ def translate_blur(
     return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
 
 
-def mirror_samples(eyes: Any, head_pose: Any, gaze: Any, augment: TrainAugment, generator: Any) -> tuple[Any, Any, Any]:
+def mirror_samples(
+    eyes: Any, head_pose: Any, gaze: Any, augment: TrainAugment, generator: Any, face: Any = None
+) -> tuple[Any, Any, Any, Any]:
     """Mirror a random share (``augment.mirror``) of a batch's samples left-right.
 
     A mirrored sample's left patch is its right patch mirrored about the normalized camera's
@@ -243,26 +245,31 @@ def mirror_samples(eyes: Any, head_pose: Any, gaze: Any, augment: TrainAugment, 
         gaze: float32 torch tensor (B, 2), radians, (pitch, yaw), the face's normalized frame.
         augment: the strengths.
         generator: a ``torch.Generator`` on the tensors' device.
+        face: uint8 torch tensor (B, Hf, Wf, 3) RGB, the face patches, or None; a mirrored
+            sample's face is mirrored about its own principal point.
 
     Returns:
-        (eyes, head_pose, gaze) of the same shapes, dtypes and device.
+        (eyes, head_pose, gaze, face) of the same shapes, dtypes and device (face None when not given).
     """
     torch = import_torch()
     b = gaze.shape[0]
     if not augment.enabled or b == 0:
-        return eyes, head_pose, gaze
+        return eyes, head_pose, gaze, face
     from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
 
     flip = torch.rand(b, generator=generator, device=eyes.device) < augment.mirror
     if augment.mirror == 0:  # decided on the host: no wait for the device
-        return eyes, head_pose, gaze
+        return eyes, head_pose, gaze, face
     left, right = eyes[:b], eyes[b:]
     cols = torch.as_tensor(mirrored_columns(eyes.shape[2]), device=eyes.device)
     f4 = flip[:, None, None, None]
     eyes = torch.cat([torch.where(f4, right[:, :, cols], left), torch.where(f4, left[:, :, cols], right)])
+    if face is not None:
+        face_cols = torch.as_tensor(mirrored_columns(face.shape[2]), device=face.device)
+        face = torch.where(f4, face[:, :, face_cols], face)
     sign = torch.as_tensor(MIRROR_PITCHYAW, dtype=gaze.dtype, device=gaze.device)
     factor = torch.where(flip[:, None], sign, torch.ones_like(sign))
-    return eyes, head_pose * factor, gaze * factor
+    return eyes, head_pose * factor, gaze * factor, face
 
 
 def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:

@@ -12,8 +12,12 @@ import pytest
 from gazeaug.io_h5 import H5Writer, Rows
 
 
-def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0):
-    """A training set whose gaze pitch is readable from the images: brightness encodes it."""
+def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0, face_size=None):
+    """A training set whose gaze pitch is readable from the images: brightness encodes it.
+
+    With ``face_size`` (width, height) the rows carry face patches too (``face``), whose brightness
+    encodes the gaze yaw, and the normalization record says so.
+    """
     rng = np.random.default_rng(seed)
     gaze = rng.uniform(-0.4, 0.4, (n, 2)).astype(np.float32)
     level = (128 + 250 * gaze[:, 0]).clip(0, 255)
@@ -42,15 +46,14 @@ def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0):
             "sampled_yaw_pitch": np.full((n, 2), np.nan),
         }
     )
-    w = H5Writer(
-        path,
-        {
-            "settings": {
-                "normalization": {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
-            }
-        },
-        (60, 36),
-    )
+    norm = {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
+    if face_size is not None:
+        fw, fh = face_size
+        face_level = (128 + 250 * gaze[:, 1]).clip(0, 255)
+        face = (face_level[:, None, None, None] + rng.normal(0, 3, (n, fh, fw, 3))).clip(0, 255).astype(np.uint8)
+        rows = Rows({**rows.arrays, "face": face})
+        norm.update(face_patch_size_wh=[fw, fh], face_distance_mm=600.0, face_focal_px=960.0)
+    w = H5Writer(path, {"settings": {"normalization": norm}}, (60, 36), face_patch_size_wh=face_size)
     w.append(rows, n - 1)
     w.finish()
     return path

@@ -262,6 +262,67 @@ def test_normalize_dataset_rows_are_the_normalized_images(mpii_root, tmp_path, d
     assert np.isnan(d["sampled_yaw_pitch"]).all()
 
 
+def test_face_patches_travel_through_the_training_set(mpii_root, tmp_path, detector):
+    from facemesh.io import load_image_rgb
+    from gazeaug.io_h5 import H5TrainingSet, H5Writer
+    from gazeaug.normalize import NormalizationSettings, normalize_image
+    from gazeaug.pipeline import fit_face
+
+    norm = NormalizationSettings(face_patch_size_wh=(48, 40))
+    out = tmp_path / "f.h5"
+    run_dataset(open_dataset(mpii_root), out, JobSettings(kind="normalize-dataset", normalization=norm), progress=False)
+    d = read_h5(out)
+    assert d["face"].shape == (2, 40, 48, 3) and d["face"].dtype == np.uint8
+    assert d["attrs"]["settings"]["normalization"]["face_patch_size_wh"] == [48, 40]
+    s = next(iter(open_dataset(mpii_root)))
+    fit = fit_face(load_image_rgb(s.image_path), s.camera, detector)
+    ref = normalize_image(
+        fit.image,
+        s.camera,
+        fit.pose,
+        fit.model.vertices_mm,
+        fit.keypoints,
+        gaze_target_mm=s.gaze_target_mm,
+        settings=norm,
+    )
+    np.testing.assert_array_equal(d["face"][0], ref.face.image)
+    np.testing.assert_array_equal(d["left_eye"][0], ref.left.image)  # the eyes as without a face patch
+    ts = H5TrainingSet(out)
+    assert ts.face_patch_size_wh == (48, 40)
+    [batch] = list(ts.batches(8, keys=("face", "gaze")))
+    assert sorted(batch) == ["face", "gaze"] and batch["face"].shape == (2, 40, 48, 3)
+    # a shard with face patches goes into an output that has them, not into one without
+    merged = H5Writer(tmp_path / "m.h5", {"settings": {}}, (60, 36), face_patch_size_wh=(48, 40))
+    assert merged.append_file(out) == 2
+    merged.finish()
+    np.testing.assert_array_equal(read_h5(tmp_path / "m.h5")["face"], d["face"])
+    plain = H5Writer(tmp_path / "p.h5", {"settings": {}}, (60, 36))
+    with pytest.raises(GazeAugError, match="face patches"):
+        plain.append_file(out)
+    plain.discard()
+    # a set made without face patches says so when asked for them
+    run_dataset(open_dataset(mpii_root), tmp_path / "n.h5", JobSettings(kind="normalize-dataset"), progress=False)
+    without = H5TrainingSet(tmp_path / "n.h5")
+    assert without.face_patch_size_wh is None and "face" not in read_h5(tmp_path / "n.h5")
+    with pytest.raises(GazeAugError, match="no face patches"):
+        next(without.batches(8, keys=("face",)))
+
+
+def test_cli_face_patch_options(folder_root, tmp_path, capsys):
+    out = tmp_path / "a.h5"
+    assert (
+        main(["augment", str(folder_root), "-o", str(out), "--per-sample", "1", "--quiet", "--face-patch", "32", "32"])
+        == 0
+    )
+    assert read_h5(out)["face"].shape == (2, 32, 32, 3)
+    capsys.readouterr()
+    assert main(["augment", str(folder_root), "-o", str(tmp_path / "b.h5"), "--face-focal", "500"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--face-patch" in err[0] and not (tmp_path / "b.h5").exists()
+    assert main(["augment", str(folder_root), "-o", str(tmp_path / "c.h5"), "--face-patch", "32", "0"]) == 2
+    assert "face patch size" in capsys.readouterr().err
+
+
 def test_inconsistent_calibration_is_an_error_naming_the_image(mpii_root, tmp_path):
     root = tmp_path / "m"
     shutil.copytree(mpii_root, root)

@@ -429,3 +429,86 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
     torch.save(obj, tmp_path / "bad.pt")
     with pytest.raises(GazeAugError, match="'prediction': expected"):
         load_model(tmp_path / "bad.pt")
+
+
+# --------------------------------------------------------------------------- the face patch as an input
+
+
+def test_a_face_model_reads_the_face_patch(tmp_path):
+    from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
+    from gazeaug.models import uses_face
+
+    m = create_model("mobilenet_gaze", face=True, face_pool=1)
+    assert uses_face(m) and not uses_face(create_model("mobilenet_gaze"))
+    left, right, head, face = prepare_inputs(
+        np.zeros((2, 36, 60, 3), np.uint8),
+        np.zeros((2, 36, 60, 3), np.uint8),
+        np.zeros((2, 2)),
+        face=np.zeros((2, 48, 48, 3), np.uint8),
+    )
+    assert face.shape == (2, 3, 48, 48) and m(left, right, head, face).shape == (2, 2)
+    with pytest.raises(GazeAugError, match="face patch"):
+        m(left, right, head)
+    face.requires_grad_(True)  # the face goes into the answer
+    m(left, right, head, face).sum().backward()
+    assert float(face.grad.abs().sum()) > 0
+    with pytest.raises(GazeAugError, match="face_pool"):
+        create_model("mobilenet_gaze", face=True, face_pool=0)
+    # trained on a set with face patches (brightness there encodes the yaw), saved, loaded
+    data = _synthetic_h5(tmp_path / "f.h5", n=32, face_size=(48, 48))
+    log = train(
+        data, tmp_path / "f.pt", TrainSettings(epochs=2, batch_size=16, model_options={"face": True}), progress=False
+    )
+    assert len(log) == 2
+    model, meta = load_model(tmp_path / "f.pt")
+    assert uses_face(model) and meta["normalization"]["face_patch_size_wh"] == [48, 48]
+    rng = np.random.default_rng(2)
+    left = rng.integers(0, 255, (4, 36, 60, 3), dtype=np.uint8)
+    right = rng.integers(0, 255, (4, 36, 60, 3), dtype=np.uint8)
+    face = rng.integers(0, 255, (4, 48, 48, 3), dtype=np.uint8)
+    for p in (left, right, face):
+        p[:, :, 0] = p[:, :, 1]  # mirroring twice gives the patch back (column 0's source lies outside)
+    head = rng.uniform(-0.3, 0.3, (4, 2))
+    plain = predict_arrays(model, left, right, head, face=face)
+    # the mirror-averaged face model is mirror-equivariant only if the face is mirrored with the eyes
+    cols, fcols = mirrored_columns(60), mirrored_columns(48)
+    mirrored = predict_arrays(
+        model, right[:, :, cols], left[:, :, cols], head * MIRROR_PITCHYAW, face=face[:, :, fcols]
+    )
+    np.testing.assert_allclose(mirrored, plain * MIRROR_PITCHYAW, atol=1e-5)
+    # without a face patch it is refused
+    with pytest.raises(GazeAugError, match="face patch"):
+        predict_arrays(model, left, right, head)
+    # a set without face patches cannot train it, nor can a file whose normalization makes none load it
+    with pytest.raises(GazeAugError, match="has none"):
+        train(
+            _synthetic_h5(tmp_path / "e.h5", n=32),
+            tmp_path / "x.pt",
+            TrainSettings(epochs=1, batch_size=16, model_options={"face": True}),
+            progress=False,
+        )
+    obj = torch.load(tmp_path / "f.pt", weights_only=True)
+    obj["normalization"] = {k: v for k, v in obj["normalization"].items() if not k.startswith("face")}
+    torch.save(obj, tmp_path / "stripped.pt")
+    with pytest.raises(GazeAugError, match="makes none"):
+        load_model(tmp_path / "stripped.pt")
+
+
+def test_a_face_model_exports_to_onnx_with_a_face_input(tmp_path, capsys):
+    pytest.importorskip("onnxruntime")
+    from gazeaug.estimator import load_estimator
+
+    data = _synthetic_h5(tmp_path / "f.h5", n=32, face_size=(40, 32))
+    assert main(["train", str(data), "-o", str(tmp_path / "f.pt"), "--face", "--epochs", "1", "--quiet"]) == 0
+    assert main(["export", str(tmp_path / "f.pt"), "-o", str(tmp_path / "f.onnx")]) == 0
+    capsys.readouterr()
+    d = H5TrainingSet(data).read(["left_eye", "right_eye", "head_pose", "face"])
+    pt, ox = load_estimator(tmp_path / "f.pt"), load_estimator(tmp_path / "f.onnx")
+    assert pt.uses_face and ox.uses_face
+    a = pt.predict(d["left_eye"], d["right_eye"], d["head_pose"], d["face"])
+    b = ox.predict(d["left_eye"], d["right_eye"], d["head_pose"], d["face"])
+    np.testing.assert_allclose(a, b, atol=1e-5)
+    with pytest.raises(GazeAugError, match="face patch"):
+        ox.predict(d["left_eye"], d["right_eye"], d["head_pose"])
+    with pytest.raises(GazeAugError, match=r"face patches: expected \(N, 32, 40, 3\)"):
+        ox.predict(d["left_eye"], d["right_eye"], d["head_pose"], d["face"][:, :, :20])

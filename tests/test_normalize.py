@@ -221,3 +221,73 @@ def test_the_normalization_kernel_against_hand_derived_values():
         normalized_views(model, kp, rots, trans, gaze_target_mm=target, gaze_vector=[0, 0, -1], **opts)
     with pytest.raises(GazeAugError, match="zero-length"):
         normalized_views(model, kp, rots[:1], trans[:1], gaze_vector=[0, 0, 0], **opts)
+
+
+def _zhang_face_warp_by_hand(face_model_3xn, head_r, head_t, camera_matrix, focal=960.0, distance_n=600.0, size=224):
+    """Zhang's face normalization written out: the face centre is the mean of the six model points at the pose."""
+    fc = head_r @ face_model_3xn + head_t.reshape(3, 1)
+    centre = fc.mean(axis=1)
+    distance = np.linalg.norm(centre)
+    forward = centre / distance
+    down = np.cross(forward, head_r[:, 0])
+    down /= np.linalg.norm(down)
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right)
+    r = np.c_[right, down, forward].T
+    cam_n = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+    return cam_n @ np.diag([1.0, 1.0, distance_n / distance]) @ r @ np.linalg.inv(camera_matrix), r
+
+
+def test_the_face_patch_is_warp_perspective_through_zhangs_face_camera(mpii, tmp_path):
+    cam, model, landmarks, image, target, raw = mpii
+    cam0 = CameraIntrinsics(cam.matrix, np.zeros(5), cam.image_size)
+    pose = solve_head_pose(landmarks, model.vertices_mm, cam0)
+    face = NormalizationSettings(antialias=False, face_patch_size_wh=(224, 224))
+    s = normalize_image(image, cam0, pose, model.vertices_mm, KEYPOINTS["mpii6"], gaze_target_mm=target, settings=face)
+    w, r = _zhang_face_warp_by_hand(raw, np.asarray(pose.rotation), np.asarray(pose.translation_mm), cam0.matrix)
+    np.testing.assert_allclose(s.face.camera.rotation, r, atol=1e-9)  # the patch sees the labels' frame
+    expected = cv2.warpPerspective(image, w, (224, 224))
+    assert s.face.image.shape == (224, 224, 3) and s.face.image.dtype == np.uint8 and expected.std() > 20
+    diff = np.abs(s.face.image.astype(int) - expected)
+    assert diff.max() <= 1 and diff.mean() < 0.01
+    # the face patch changes no label and no eye
+    plain = normalize_image(
+        image,
+        cam0,
+        pose,
+        model.vertices_mm,
+        KEYPOINTS["mpii6"],
+        gaze_target_mm=target,
+        settings=NormalizationSettings(antialias=False),
+    )
+    assert plain.face.image is None
+    np.testing.assert_array_equal(plain.face.gaze, s.face.gaze)
+    np.testing.assert_array_equal(plain.left.image, s.left.image)
+    # the face camera's own distance and focal: half the focal is half the scale about the centre
+    half = NormalizationSettings(antialias=False, face_patch_size_wh=(112, 112), face_focal_px=480.0)
+    h = normalize_image(image, cam0, pose, model.vertices_mm, KEYPOINTS["mpii6"], settings=half)
+    w_half, _ = _zhang_face_warp_by_hand(
+        raw, np.asarray(pose.rotation), np.asarray(pose.translation_mm), cam0.matrix, focal=480.0, size=112
+    )
+    assert np.abs(h.face.image.astype(int) - cv2.warpPerspective(image, w_half, (112, 112))).max() <= 1
+    # saved with the sample
+    save_npz(tmp_path / "f.npz", s)
+    z = load_npz(tmp_path / "f.npz")
+    np.testing.assert_array_equal(z["face"], s.face.image)
+    assert z["face_patch_size_wh"].tolist() == [224, 224] and float(z["face_focal_px"]) == 960
+
+
+def test_face_patch_settings_and_their_record():
+    plain = NormalizationSettings()
+    # without a face patch the record is the one outputs carried before face patches existed
+    assert plain.as_dict() == {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
+    face = NormalizationSettings(face_patch_size_wh=(224, 224))
+    rec = face.as_dict()
+    assert rec["face_patch_size_wh"] == [224, 224] and rec["face_focal_px"] == 960 and rec["face_distance_mm"] == 600
+    assert NormalizationSettings.from_dict(rec) == face
+    with pytest.raises(GazeAugError, match="face patch size"):
+        NormalizationSettings(face_patch_size_wh=(224, 2000))
+    with pytest.raises(GazeAugError, match="without a face patch"):
+        NormalizationSettings(face_focal_px=500.0)
+    with pytest.raises(GazeAugError, match="face_distance_mm"):
+        NormalizationSettings(face_patch_size_wh=(224, 224), face_distance_mm=-1.0)

@@ -12,7 +12,7 @@ from facemesh.io import load_image_rgb
 from facemesh.types import FaceMesh
 from gazeaug.augment import face_asset, render_poses, sampled_placement, source_placement
 from gazeaug.errors import GazeAugError
-from gazeaug.normalize import normalize_image
+from gazeaug.normalize import NormalizationSettings, normalize_image
 from gazeaug.pipeline import fit_face, mesh_for_fit
 from gazeaug.render import create_renderer
 
@@ -56,6 +56,26 @@ def test_render_at_the_original_pose_matches_normalization(fits, assets, faces_d
         assert np.degrees(np.abs(a.gaze - b.gaze)).max() <= 0.01
         assert np.degrees(np.abs(a.head_pose - b.head_pose)).max() <= 0.01
         assert b.coverage == 1.0
+
+
+def test_the_face_patch_rendered_at_the_original_pose_matches_normalization(fits, assets, faces_dir):
+    # the face camera (ETH-XGaze's 960 px at 600 mm, 224 x 224) through the same kernel: the whole
+    # patch sees the head (face and background rings), and equals the photo's normalized face patch
+    name = face_photo(faces_dir, "sergey.png").relative_to(faces_dir).as_posix()
+    fit, asset = fits[name], assets[name]
+    s = NormalizationSettings(face_patch_size_wh=(224, 224))
+    ref = normalize_image(
+        fit.image, fit.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, gaze_target_mm=TARGET, settings=s
+    )
+    scene = create_renderer("raycast").scene(asset.render_mesh)
+    out = render_poses(scene, asset, [source_placement(asset)], gaze_target_mm=TARGET, settings=s)[0]
+    assert out.face.image.shape == ref.face.image.shape == (224, 224, 3)
+    assert np.abs(ref.face.image.astype(float) - out.face.image).mean() <= 1.5 and out.face.coverage == 1.0
+    np.testing.assert_allclose(out.face.gaze, ref.face.gaze, atol=1e-6)
+    # the eyes are what they are without a face patch
+    plain = render_poses(scene, asset, [source_placement(asset)], gaze_target_mm=TARGET)[0]
+    np.testing.assert_array_equal(plain.left.image, out.left.image)
+    assert plain.face.image is None
 
 
 def test_labels_at_a_new_pose_by_hand(asset_of):

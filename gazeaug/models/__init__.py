@@ -18,7 +18,7 @@ from typing import Any
 from ..errors import GazeAugError
 from ..registry import Registry, Target
 
-__all__ = ["register_model", "create_model", "MODELS", "TORCH_INSTALL_HINT", "import_torch"]
+__all__ = ["register_model", "create_model", "uses_face", "MODELS", "TORCH_INSTALL_HINT", "import_torch"]
 
 TORCH_INSTALL_HINT = "the gaze model needs PyTorch: pip install torch==2.13.0 (or pip install 'gazeaug[train]')"
 
@@ -43,6 +43,11 @@ def register_model(name: str, target: Target | None = None) -> Any:
     ``"package.module:factory"`` (imported when the model is first created).
     """
     return MODELS.register(name, target)
+
+
+def uses_face(model: Any) -> bool:
+    """True when ``model`` reads the normalized face patch as a fourth input (``mobilenet_gaze(face=True)``)."""
+    return bool(getattr(model, "uses_face", False))
 
 
 def create_model(name: str = "mobilenet_gaze", **options: Any) -> Any:

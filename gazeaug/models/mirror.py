@@ -34,8 +34,9 @@ def mirror_averaged(model: Any) -> Any:
     gives them (any C, any H and W >= 2); the head pose, float32 (N, 2) radians
     (pitch, yaw), face-centre normalized frame; and returns the gaze (N, 2) in the same
     units and frame: ``(model(l, r, h) + m(model(M r, M l, m h))) / 2``, where ``M``
-    mirrors a patch's columns and ``m`` negates a yaw. The wrapped network is its
-    ``net`` attribute (its weights, ``state_dict`` keys prefixed ``net.``).
+    mirrors a patch's columns and ``m`` negates a yaw. A model that reads the face patch
+    (:func:`gazeaug.models.uses_face`) takes it fourth, float32 (N, C, Hf, Wf), and is given
+    ``M f``. The wrapped network is its ``net`` attribute (its weights, ``state_dict`` keys prefixed ``net.``).
     """
     torch = import_torch()
     from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
@@ -47,6 +48,7 @@ def mirror_averaged(model: Any) -> Any:
         def __init__(self, net: Any) -> None:
             super().__init__()
             self.net = net
+            self.uses_face = bool(getattr(net, "uses_face", False))
             self.register_buffer("sign", torch.as_tensor(MIRROR_PITCHYAW, dtype=torch.float32), persistent=False)
             self._cols: dict[tuple[int, str], Any] = {}  # mirrored column indices per (width, device)
 
@@ -56,17 +58,22 @@ def mirror_averaged(model: Any) -> Any:
                 self._cols[key] = torch.as_tensor(mirrored_columns(key[0]), device=x.device)
             return self._cols[key]
 
-        def forward(self, left: Any, right: Any, head: Any) -> Any:
+        def forward(self, left: Any, right: Any, head: Any, face: Any = None) -> Any:
             n = left.shape[0]
             cols = self._columns(left)
             sign = self.sign.to(head.dtype)
             # channels last, as prepare_inputs gives them: the network runs about twice as fast on it
             fast = torch.channels_last if left.dim() == 4 else torch.contiguous_format
-            both = self.net(
+            inputs = [
                 torch.cat([left, right.index_select(-1, cols)]).contiguous(memory_format=fast),
                 torch.cat([right, left.index_select(-1, cols)]).contiguous(memory_format=fast),
                 torch.cat([head, head * sign]),
-            )
+            ]
+            if face is not None:  # the face mirrored about its own principal point
+                inputs.append(
+                    torch.cat([face, face.index_select(-1, self._columns(face))]).contiguous(memory_format=fast)
+                )
+            both = self.net(*inputs)
             return (both[:n] + both[n:] * sign.to(both.dtype)) / 2
 
     return MirrorAveraged(model)

@@ -5,12 +5,21 @@ then inverted residual blocks (1 x 1 expansion, 3 x 3 depthwise, 1 x 1 linear
 projection, residual when the shape allows), then global average pooling.
 The two eye features and the head pose go through a small MLP to the gaze
 (pitch, yaw).
+
+With ``face=True`` the model also reads the normalized face patch
+(``--face-patch``, :func:`gazeaug.normalize.face_patch_camera`): a second
+encoder of its own weights (:data:`FACE_BLOCKS`) reads it average-pooled by
+``face_pool`` (224 x 224 -> 112 x 112 by default), and its features join the
+eyes' and the head pose's before the MLP. Such a model's ``forward`` takes the
+face patch as a fourth input and its ``uses_face`` attribute is True
+(:func:`gazeaug.models.uses_face`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from ..errors import GazeAugError
 from . import import_torch, register_model
 
 __all__ = ["mobilenet_gaze"]
@@ -27,7 +36,20 @@ DEFAULT_BLOCKS: tuple[tuple[int, int, int], ...] = (
 )
 
 
-def _build(stem: int, blocks: tuple[tuple[int, int, int], ...], hidden: int) -> Any:
+#: The face encoder's blocks, after its stride-2 stem, on the face patch pooled by ``face_pool``:
+#: 112 x 112 -> 56 -> 56 -> 28 -> 14 -> 7 -> 4 (a 224 x 224 patch pooled by 2).
+FACE_BLOCKS: tuple[tuple[int, int, int], ...] = (
+    (1, 8, 1),
+    (3, 16, 2),
+    (3, 24, 2),
+    (3, 32, 2),
+    (3, 48, 2),
+)
+
+
+def _build(
+    stem: int, blocks: tuple[tuple[int, int, int], ...], hidden: int, face: bool = False, face_pool: int = 2
+) -> Any:
     torch = import_torch()
     nn = torch.nn
 
@@ -53,11 +75,12 @@ def _build(stem: int, blocks: tuple[tuple[int, int, int], ...], hidden: int) -> 
             return x + y if self.residual else y
 
     class EyeEncoder(nn.Module):  # type: ignore[misc, name-defined]
-        def __init__(self) -> None:
+        def __init__(self, block_list: tuple[tuple[int, int, int], ...] = blocks, pool: int = 1) -> None:
             super().__init__()
-            layers: list[Any] = [nn.Conv2d(3, stem, 3, 2, 1, bias=False), nn.BatchNorm2d(stem), nn.ReLU6(inplace=True)]
+            layers: list[Any] = [nn.AvgPool2d(pool)] if pool > 1 else []
+            layers += [nn.Conv2d(3, stem, 3, 2, 1, bias=False), nn.BatchNorm2d(stem), nn.ReLU6(inplace=True)]
             c = stem
-            for e, cout, s in blocks:
+            for e, cout, s in block_list:
                 layers.append(InvertedResidual(c, cout, s, e))
                 c = cout
             self.features = nn.Sequential(*layers)
@@ -67,23 +90,53 @@ def _build(stem: int, blocks: tuple[tuple[int, int, int], ...], hidden: int) -> 
             return self.features(x).mean(dim=(2, 3))
 
     class MobileNetGaze(nn.Module):  # type: ignore[misc, name-defined]
-        """(left (N,3,H,W), right (N,3,H,W), head pose (N,2)) -> gaze (N,2) pitch, yaw radians."""
+        """(left (N,3,H,W), right (N,3,H,W), head pose (N,2)[, face (N,3,Hf,Wf)]) -> gaze (N,2) pitch, yaw radians."""
 
         def __init__(self) -> None:
             super().__init__()
+            self.uses_face = bool(face)
             self.encoder = EyeEncoder()
-            f = self.encoder.out_channels
-            self.head = nn.Sequential(nn.Linear(2 * f + 2, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, 2))
+            f = 2 * self.encoder.out_channels
+            if self.uses_face:
+                self.face_encoder = EyeEncoder(FACE_BLOCKS, face_pool)
+                f += self.face_encoder.out_channels
+            self.head = nn.Sequential(nn.Linear(f + 2, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, 2))
 
-        def forward(self, left: Any, right: Any, head_pose: Any) -> Any:
+        def forward(self, left: Any, right: Any, head_pose: Any, face: Any = None) -> Any:
             n = left.shape[0]
             feats = self.encoder(torch.cat([left, right], dim=0))
-            return self.head(torch.cat([feats[:n], feats[n:], head_pose], dim=1))
+            parts = [feats[:n], feats[n:], head_pose]
+            if self.uses_face:
+                if face is None:
+                    raise GazeAugError("this model reads a face patch as well: give it as the fourth input")
+                parts.append(self.face_encoder(face))
+            return self.head(torch.cat(parts, dim=1))
 
     return MobileNetGaze()
 
 
 @register_model("mobilenet_gaze")
-def mobilenet_gaze(stem: int = 8, hidden: int = 128, blocks: tuple[tuple[int, int, int], ...] = DEFAULT_BLOCKS) -> Any:
-    """The default gaze model (see the module docstring); options change its width."""
-    return _build(stem, tuple(tuple(b) for b in blocks), hidden)  # type: ignore[misc]
+def mobilenet_gaze(
+    stem: int = 8,
+    hidden: int = 128,
+    blocks: tuple[tuple[int, int, int], ...] = DEFAULT_BLOCKS,
+    face: bool = False,
+    face_pool: int = 2,
+) -> Any:
+    """The default gaze model (see the module docstring); options change its width.
+
+    Args:
+        stem: channels of the stem (both encoders).
+        hidden: width of the MLP.
+        blocks: (expansion, out channels, stride) of the eye encoder's blocks.
+        face: also read the normalized face patch (default False: the eyes and the head pose).
+        face_pool: the face patch is average-pooled by this factor first (default 2: 224 -> 112).
+
+    Raises:
+        GazeAugError: ``face`` not a bool, or ``face_pool`` not an integer from 1 to 8.
+    """
+    if not isinstance(face, bool):
+        raise GazeAugError(f"mobilenet_gaze face: expected true or false, got {face!r}")
+    if not (isinstance(face_pool, int) and not isinstance(face_pool, bool) and 1 <= face_pool <= 8):
+        raise GazeAugError(f"mobilenet_gaze face_pool: expected an integer from 1 to 8, got {face_pool!r}")
+    return _build(stem, tuple(tuple(b) for b in blocks), hidden, face, face_pool)  # type: ignore[misc]

@@ -195,8 +195,9 @@ def prepare_inputs(
     head_pose: NDArray[np.floating[Any]],
     input_mode: str = "rgb",
     device: Any = None,
-) -> tuple[Any, Any, Any]:
-    """Numpy arrays -> the three float32 torch tensors a model takes.
+    face: NDArray[np.uint8] | None = None,
+) -> tuple[Any, ...]:
+    """Numpy arrays -> the float32 torch tensors a model takes (three, or four with a face patch).
 
     Args:
         left_eye: (N, H, W, 3) uint8 RGB.
@@ -206,9 +207,12 @@ def prepare_inputs(
             before input modes).
         device: where the tensors go (default: the CPU); the patches travel as uint8 and are
             converted there.
+        face: (N, Hf, Wf, 3) uint8 RGB normalized face patches, for a model that reads them
+            (:func:`gazeaug.models.uses_face`); prepared as the eyes are (the same input mode).
 
     Returns:
-        left, right: float32 (N, 3, H, W) in [-1, 1]; head pose: float32 (N, 2) radians.
+        left, right: float32 (N, 3, H, W) in [-1, 1]; head pose: float32 (N, 2) radians; and, when
+        ``face`` is given, the face: float32 (N, 3, Hf, Wf) in [-1, 1].
     """
     from . import import_torch
 
@@ -219,4 +223,5 @@ def prepare_inputs(
         return scale_eyes(eyes_to_float(t if device is None else t.to(device)), input_mode)
 
     head = torch.from_numpy(np.asarray(head_pose, dtype=np.float32))
-    return eyes(left_eye), eyes(right_eye), head if device is None else head.to(device)
+    out = (eyes(left_eye), eyes(right_eye), head if device is None else head.to(device))
+    return out if face is None else (*out, eyes(face))
