@@ -1,9 +1,10 @@
 """Training data path speed: samples per second reading, reading + augmenting, and training.
 
-``python benchmarks/bench_train.py [--rows 20000] [--batch-sizes 256 1024] [--threads 2]``
+``python benchmarks/bench_train.py [--rows 20000] [--batch-sizes 256 1024] [--threads 2] [--face-patch W H]``
 builds a synthetic training set (36 x 60 patches: a grey level that encodes the
 gaze, a darker "iris" disc and pixel noise, gzip-compressed like the real sets;
-the schema of ``gazeaug augment``) and, on the CPU (``--threads`` torch threads)
+the schema of ``gazeaug augment``; with ``--face-patch`` a face patch of that size
+per row too, and the model is ``mobilenet_gaze(face=True)``) and, on the CPU (``--threads`` torch threads)
 and on CUDA when there is one, for every batch size measures one pass over it:
 
 - ``read``: the rows from HDF5 through :func:`gazeaug.train.prefetch_batches`
@@ -40,11 +41,19 @@ from gazeaug.train_augment import TrainAugment, augment_generator  # noqa: E402
 _BLOCK = 2048
 
 
-def synthetic(path: Path, n: int, seed: int = 0) -> Path:
-    """A schema-complete training set of ``n`` eye-like patches, written in blocks (bounded memory)."""
+def synthetic(path: Path, n: int, seed: int = 0, face_size: tuple[int, int] | None = None) -> Path:
+    """A schema-complete training set of ``n`` eye-like patches, written in blocks (bounded memory).
+
+    With ``face_size`` (width, height) each row has a face patch too: the eye image resized, plus noise.
+    """
+    import cv2
+
     rng = np.random.default_rng(seed)
     yy, xx = np.mgrid[0:36, 0:60]
-    w = H5Writer(path, {"settings": {}}, (60, 36))
+    norm: dict[str, Any] = {"distance_mm": 600.0, "focal_px": 650.0, "patch_size_wh": [60, 36], "antialias": True}
+    if face_size is not None:
+        norm.update(face_patch_size_wh=list(face_size), face_distance_mm=600.0, face_focal_px=960.0)
+    w = H5Writer(path, {"settings": {"normalization": norm}}, (60, 36), face_patch_size_wh=face_size)
     for lo in range(0, n, _BLOCK):
         m = min(_BLOCK, n - lo)
         gaze = rng.uniform(-0.4, 0.4, (m, 2)).astype(np.float32)
@@ -73,6 +82,9 @@ def synthetic(path: Path, n: int, seed: int = 0) -> Path:
             "source_index": np.arange(lo, lo + m),
             "sampled_yaw_pitch": np.full((m, 2), np.nan),
         }
+        if face_size is not None:
+            big = np.stack([cv2.resize(e, face_size) for e in eyes]).astype(np.int16)
+            cols["face"] = (big + rng.integers(-3, 4, big.shape)).clip(0, 255).astype(np.uint8)
         w.append(Rows(cols), lo + m - 1)
     w.finish()
     return path
@@ -83,30 +95,38 @@ def _pass(h5: Path, batch_size: int, device: Any, augment: bool) -> float:
     import torch
 
     data = H5TrainingSet(h5)
+    face = data.face_patch_size_wh is not None
     cuda = device.type == "cuda"
     gen = augment_generator(0, 0, device)
     aug = TrainAugment()
     seen = 0
     t0 = time.perf_counter()
-    for _, tensors in prefetch_batches(data, batch_size, np.random.default_rng(0), pin=cuda):
+    for _, tensors in prefetch_batches(data, batch_size, np.random.default_rng(0), pin=cuda, face=face):
         if augment:
-            a, _, _, _ = train_inputs(tensors, device, aug, "rgb", gen)
+            train_inputs(tensors, device, aug, "rgb", gen)
         else:
-            tensors["eyes"].to(device, non_blocking=True)
+            for k in ("eyes", "face") if face else ("eyes",):
+                tensors[k].to(device, non_blocking=True)
         seen += len(tensors["gaze"])
     if cuda:
         torch.cuda.synchronize()
     return round(seen / (time.perf_counter() - t0), 1)
 
 
-def measure(h5: Path, tmp: Path, batch_size: int, device_name: str) -> dict[str, float]:
-    """Every figure for one device and batch size."""
+def measure(h5: Path, tmp: Path, batch_size: int, device_name: str, face: bool = False) -> dict[str, float]:
+    """Every figure for one device and batch size (``face``: the model reads the face patch too)."""
     import torch
 
     device = torch.device(device_name)
     out = {"read": _pass(h5, batch_size, device, False), "read_augment": _pass(h5, batch_size, device, True)}
     for what, aug in (("train", TrainAugment()), ("train_no_augment", TrainAugment(enabled=False))):
-        s = TrainSettings(epochs=1, batch_size=batch_size, device=device_name, augment=aug)
+        s = TrainSettings(
+            epochs=1,
+            batch_size=batch_size,
+            device=device_name,
+            augment=aug,
+            model_options={"face": True} if face else {},
+        )
         log = train(h5, tmp / f"m_{device_name}_{batch_size}_{what}.pt", s, progress=False)
         out[what] = log[-1]["samples_per_second"]
     return out
@@ -119,19 +139,24 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--batch-sizes", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
     p.add_argument("--no-cuda", action="store_true", help="CPU only, even with a GPU")
+    p.add_argument(
+        "--face-patch", type=int, nargs=2, default=None, metavar=("W", "H"), help="face patches too, and a face model"
+    )
     args = p.parse_args(argv)
+    face = None if args.face_patch is None else (args.face_patch[0], args.face_patch[1])
     warnings.simplefilter("ignore")
     import torch
 
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as tmp:
-        h5 = synthetic(Path(tmp) / "bench.h5", args.rows)
-        cpu = {str(b): measure(h5, Path(tmp), b, "cpu") for b in args.batch_sizes}
+        h5 = synthetic(Path(tmp) / "bench.h5", args.rows, face_size=face)
+        cpu = {str(b): measure(h5, Path(tmp), b, "cpu", face is not None) for b in args.batch_sizes}
         cuda = None
         if torch.cuda.is_available() and not args.no_cuda:
-            cuda = {str(b): measure(h5, Path(tmp), b, "cuda") for b in args.batch_sizes}
+            cuda = {str(b): measure(h5, Path(tmp), b, "cuda", face is not None) for b in args.batch_sizes}
         result = {
             "rows": args.rows,
+            "face_patch_wh": face,
             "threads": torch.get_num_threads(),
             "cpu": cpu,
             "cuda": cuda,

@@ -220,7 +220,12 @@ class _Interrupting:
 
 
 def test_resume_after_an_interruption(mpii_root, tmp_path):
-    settings = JobSettings(kind="augment", per_sample=2, seed=2)
+    from gazeaug.normalize import NormalizationSettings
+
+    # with face patches: every column, the optional one too, resumes where the last flush left it
+    settings = JobSettings(
+        kind="augment", per_sample=2, seed=2, normalization=NormalizationSettings(face_patch_size_wh=(24, 24))
+    )
     out = tmp_path / "r.h5"
     with pytest.raises(KeyboardInterrupt):
         run_dataset(_Interrupting(open_dataset(mpii_root), 1), out, settings, progress=False, flush_every=1)
@@ -235,6 +240,7 @@ def test_resume_after_an_interruption(mpii_root, tmp_path):
     run_dataset(open_dataset(mpii_root), out, settings, resume=True, progress=False)
     run_dataset(open_dataset(mpii_root), tmp_path / "straight.h5", settings, progress=False)
     a, b = read_h5(out), read_h5(tmp_path / "straight.h5")
+    assert a["face"].shape == (4, 24, 24, 3)
     for k in a:
         if k != "attrs":
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # nothing lost, nothing duplicated

@@ -197,8 +197,10 @@ def test_ray_gives_the_local_arrays_in_the_local_order(ray_local, dataset, local
     assert got["nodes"][0] and socket.gethostname() in got["nodes"][0]  # the failing sample names its node
     assert summary["rows"] == 16 and summary["skipped"] == 1
     assert not shard_dir(out).exists() and not part_path(out).exists()
-    # normalize-dataset too, with blocks that do not divide the dataset
-    base = JobSettings(kind="normalize-dataset")
+    # normalize-dataset too, with blocks that do not divide the dataset, and face patches in the shards
+    from gazeaug.normalize import NormalizationSettings
+
+    base = JobSettings(kind="normalize-dataset", normalization=NormalizationSettings(face_patch_size_wh=(32, 24)))
     run_dataset(open_dataset(dataset), tmp_path / "n_local.h5", base, progress=False)
     run_dataset(
         open_dataset(dataset),
@@ -208,6 +210,7 @@ def test_ray_gives_the_local_arrays_in_the_local_order(ray_local, dataset, local
         engine=Engine("ray", workers=2, block_size=4),
     )
     _assert_same(tmp_path / "n_ray.h5", tmp_path / "n_local.h5")
+    assert _contents(tmp_path / "n_ray.h5")["face"].shape[1:] == (24, 32, 3)
 
 
 class _Interrupting:
