@@ -22,7 +22,7 @@ normalization of the photo itself.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -438,13 +438,13 @@ def render_redirected(
         raise GazeAugError(f"targets: expected finite ({len(placements)}, 3) mm, got shape {targets.shape}")
     views = views_at(asset.model_vertices_mm, asset.keypoints, rot, trans, s, gaze_target_mm=targets)
     blur = eye_softness_px(asset, s)
-    # the face patch's pixels per mm against the eye patches' (both cameras at their own d_n)
-    face_zoom = (s.face_focal_px / s.face_distance_mm) / (s.focal_px / s.distance_mm)
+    # the same softness at the face camera's scale (its own f_n / d_n against the photo's)
+    face_blur = eye_softness_px(asset, replace(s, focal_px=s.face_focal_px, distance_mm=s.face_distance_mm))
     images, coverage, faces, face_cover = [], [], [], []
     for i in range(len(placements)):
         groups: list[tuple[Sequence[NormalizedCamera], float]] = [(views.cameras[i][:2], blur)]
         if s.face_patch_size_wh is not None:
-            groups.append(([face_patch_camera(views.cameras[i][2], s)], blur * face_zoom))
+            groups.append(([face_patch_camera(views.cameras[i][2], s)], face_blur))
         rendered = subject.render_patch_groups(
             rot[i],
             trans[i],

@@ -8,8 +8,12 @@ same output: gaze (pitch, yaw) in radians in the face-centre normalized frame
 ``metadata_props`` (:mod:`gazeaug.export`): the input mode, the normalized
 camera and the patch size. An ONNX file without them is refused.
 
+A model that reads the normalized face patch too (:attr:`GazeEstimator.uses_face`) takes it
+as a fourth input; its ``normalization`` makes one.
+
 >>> est = load_estimator("model.pt")            # doctest: +SKIP
 >>> est.predict(left, right, head_pose)         # doctest: +SKIP
+>>> est.predict(left, right, head_pose, face)   # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -131,6 +135,8 @@ def load_estimator(path: str | Path, device: str = "cpu") -> GazeEstimator:
 
     model, meta = load_model(p, device=device)
     norm = NormalizationSettings.from_dict(meta["normalization"])
+    if not meta["uses_face"]:  # test time samples what the model reads
+        norm = norm.without_face()
     return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model)
 
 

@@ -48,11 +48,16 @@ __all__ = ["evaluate_h5", "evaluate_dataset", "predict_image", "write_report", "
 
 
 def settings_from_meta(meta: Mapping[str, Any]) -> NormalizationSettings:
-    """The normalization settings a model was trained with (the defaults when unrecorded)."""
+    """The normalization a model's inputs need: its training data's (the defaults when unrecorded).
+
+    A model that reads no face patch (``meta["uses_face"]`` False or absent) gets settings that
+    make none, even when its training data carried face patches: test time samples what it reads.
+    """
     n = dict(meta.get("normalization") or {})
     if "patch_size_wh" in n:
         n["patch_size_wh"] = tuple(n["patch_size_wh"])
-    return NormalizationSettings(**n)
+    settings = NormalizationSettings(**n)
+    return settings if meta.get("uses_face") else settings.without_face()
 
 
 def _metrics(rows: list[dict[str, Any]]) -> dict[str, Any] | None:

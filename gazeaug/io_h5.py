@@ -37,8 +37,8 @@ which samples of which dataset), ``complete`` (True only once the run finished),
 by the last flush), ``next_source_index`` and ``skipped`` (a JSON list of
 ``{source_index, image, reason}``).
 
-Per-row datasets: chunks of 64 rows, gzip level 1 (shuffle filter on all but
-the eye patches); ``sources/*``: chunks of 1024, uncompressed. While a run is
+Per-row datasets: chunks of 64 rows (``face``: at most 1 MiB a chunk), gzip level 1
+(shuffle filter on all but the eye and face patches); ``sources/*``: chunks of 1024, uncompressed. While a run is
 going, the file is ``OUT.h5.part``; it is renamed to ``OUT.h5`` only when
 complete, so a killed run never leaves a file that looks complete.
 ``--resume`` reopens the ``.part`` file when ``settings`` and ``selection``
@@ -71,6 +71,11 @@ __all__ = ["H5Writer", "H5TrainingSet", "rows_from_samples", "part_path", "read_
 REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
 _CHUNK = 64
 _BLOCK = 2048  # rows read at once when streaming batches
+#: Face-patch chunks hold at most this many bytes (h5py's default chunk cache, 1 MiB: a chunk larger
+#: than it is read back and recompressed whenever a flush ends inside it), and a streamed block of
+#: rows with faces at most :data:`_FACE_BLOCK_BYTES` of them.
+_FACE_CHUNK_BYTES = 1 << 20
+_FACE_BLOCK_BYTES = 64 << 20
 
 
 def part_path(path: str | Path) -> Path:
@@ -143,6 +148,13 @@ _DTYPES: dict[str, Any] = {
 
 #: The image columns (not byte-shuffled before gzip).
 _IMAGE_KEYS = ("left_eye", "right_eye", "face")
+
+
+def _chunk_rows(key: str, tail: tuple[int, ...]) -> int:
+    """Rows per HDF5 chunk of a column: :data:`_CHUNK`, fewer for face patches (:data:`_FACE_CHUNK_BYTES`)."""
+    if key != "face":
+        return _CHUNK
+    return max(1, min(_CHUNK, _FACE_CHUNK_BYTES // int(np.prod(tail))))
 
 
 def _dtypes(with_face: bool) -> dict[str, Any]:
@@ -279,7 +291,7 @@ class H5Writer:
                     shape=(0, *tail),
                     maxshape=(None, *tail),
                     dtype=dt,
-                    chunks=(_CHUNK, *tail),
+                    chunks=(_chunk_rows(k, tail), *tail),
                     **(
                         {"compression": "gzip", "compression_opts": 1, "shuffle": k not in _IMAGE_KEYS}
                         if compress
@@ -613,7 +625,11 @@ class H5TrainingSet:
         wanted = tuple(keys) if keys is not None else self.KEYS
         if "face" in wanted and self.face_patch_size_wh is None:
             raise GazeAugError(f"{self.path}: no face patches (made without --face-patch)")
-        blocks = [self.rows[i : i + _BLOCK] for i in range(0, len(self.rows), _BLOCK)]
+        size = _BLOCK
+        if "face" in wanted and self.face_patch_size_wh is not None:  # bounded memory: faces are large
+            fw, fh = self.face_patch_size_wh
+            size = max(64, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
+        blocks = [self.rows[i : i + size] for i in range(0, len(self.rows), size)]
         order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
         carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
         carried = 0

@@ -93,6 +93,10 @@ class JobSettings:
                 )
             if self.renderer != "raycast":
                 raise GazeAugError(f"redirected eyes are ray cast: expected renderer 'raycast', got {self.renderer!r}")
+        if self.kind == "augment" and self.normalization.face_patch_size_wh is not None and self.renderer != "raycast":
+            raise GazeAugError(
+                f"face patches are ray cast: expected renderer 'raycast' with --face-patch, got {self.renderer!r}"
+            )
         if self.kind == "augment" and not (isinstance(self.per_sample, int) and self.per_sample >= 1):
             raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
         from .render import RENDERERS

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -152,6 +152,10 @@ class NormalizationSettings:
         if unknown:
             raise GazeAugError(f"normalization settings: unknown keys {unknown} (known: {known})")
         return cls(**{str(k): v for k, v in data.items()})
+
+    def without_face(self) -> NormalizationSettings:
+        """These settings making no face patch (the eyes' camera and patch unchanged)."""
+        return replace(self, **_FACE_DEFAULTS)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form, as recorded in outputs.

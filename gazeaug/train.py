@@ -253,6 +253,13 @@ def predict_arrays(
         face = None
     elif face is None:
         raise GazeAugError("the model reads a normalized face patch as well, and none was given")
+    else:
+        want = getattr(model, "face_patch_size_wh", None)  # a loaded model's (see load_model)
+        if want is not None and tuple(face.shape[1:3]) != (want[1], want[0]):
+            raise GazeAugError(
+                f"face patches: the model was trained on {want[0]} x {want[1]} px ones, "
+                f"got {face.shape[2]} x {face.shape[1]} (normalize them with its face camera)"
+            )
     device = next(model.parameters()).device
     out = []
     model.eval()
@@ -489,18 +496,26 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
         model = create_model(name, **options)
     except TypeError as exc:
         raise GazeAugError(f"{p}: model {name!r} does not take the options {options} ({exc})") from exc
+    except GazeAugError as exc:  # an unknown name, or an option's value refused
+        raise GazeAugError(f"{p}: {exc}") from exc
     _load_weights(model, state, p, f"gazeaug model ({name})")
-    if uses_face(model) and normalization.face_patch_size_wh is None:
-        raise GazeAugError(f"{p}: the model reads a face patch, and its normalization makes none (face_patch_size_wh)")
+    if uses_face(model):
+        if normalization.face_patch_size_wh is None:
+            raise GazeAugError(
+                f"{p}: the model reads a face patch, and its normalization makes none (face_patch_size_wh)"
+            )
     mirror = _mirror_average(obj.get("prediction", {}), p)
     if mirror:
         from .models.mirror import mirror_averaged
 
         model = mirror_averaged(model)
+    if uses_face(model):
+        model.face_patch_size_wh = normalization.face_patch_size_wh  # predict_arrays checks what it is given
     model.to(_device(device)).eval()
     set_input_mode(model, input_mode)  # predict_arrays (evaluate, predict) reads it
     meta = {k: v for k, v in obj.items() if k != "state_dict"}
     meta["input_mode"] = input_mode
+    meta["uses_face"] = uses_face(model)
     meta["mirror_average"] = mirror
     meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
     meta["patch_size_wh"] = patch
@@ -669,10 +684,24 @@ def _train(
     face = uses_face(model)
     if face:  # the face patches come from the training set, made as test time makes them
         for what in (data, val):
-            if what is not None and what.face_patch_size_wh is None:
+            if what is None:
+                continue
+            if what.face_patch_size_wh is None:
                 raise GazeAugError(
                     f"{what.path}: the model reads a normalized face patch, and this set has none "
                     "(make it with --face-patch W H)"
+                )
+            made = _normalization(what.settings.get("normalization", {}), what.path, "training set")
+            if (made.face_patch_size_wh, made.face_distance_mm, made.face_focal_px) != (
+                normalization.face_patch_size_wh,
+                normalization.face_distance_mm,
+                normalization.face_focal_px,
+            ) or made.face_patch_size_wh != what.face_patch_size_wh:
+                raise GazeAugError(
+                    f"{what.path}: its face patches ({what.face_patch_size_wh}, recorded as made by "
+                    f"{made.face_patch_size_wh} px at {made.face_distance_mm:g} mm with {made.face_focal_px:g} px) "
+                    f"differ from the training set's ({normalization.face_patch_size_wh} px at "
+                    f"{normalization.face_distance_mm:g} mm with {normalization.face_focal_px:g} px)"
                 )
     opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
     steps_per_epoch = math.ceil(len(data) / batch_size)

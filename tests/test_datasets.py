@@ -327,6 +327,11 @@ def test_cli_face_patch_options(folder_root, tmp_path, capsys):
     assert len(err) == 1 and "--face-patch" in err[0] and not (tmp_path / "b.h5").exists()
     assert main(["augment", str(folder_root), "-o", str(tmp_path / "c.h5"), "--face-patch", "32", "0"]) == 2
     assert "face patch size" in capsys.readouterr().err
+    # Filament renders one image size per scene, the eye patch's: refused at once, one line
+    args = ["augment", str(folder_root), "-o", str(tmp_path / "d.h5"), "--face-patch", "32", "32"]
+    assert main([*args, "--renderer", "filament"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "raycast" in err[0] and not (tmp_path / "d.h5").exists()
 
 
 def test_inconsistent_calibration_is_an_error_naming_the_image(mpii_root, tmp_path):

@@ -476,9 +476,30 @@ def test_a_face_model_reads_the_face_patch(tmp_path):
         model, right[:, :, cols], left[:, :, cols], head * MIRROR_PITCHYAW, face=face[:, :, fcols]
     )
     np.testing.assert_allclose(mirrored, plain * MIRROR_PITCHYAW, atol=1e-5)
-    # without a face patch it is refused
+    # without a face patch, or with one of another size, it is refused
     with pytest.raises(GazeAugError, match="face patch"):
         predict_arrays(model, left, right, head)
+    with pytest.raises(GazeAugError, match="trained on 48 x 48"):
+        predict_arrays(model, left, right, head, face=face[:, :40])
+    # a validation set whose face camera differs from the training set's is refused before training
+    with pytest.raises(GazeAugError, match="differ from the training set's"):
+        train(
+            data,
+            tmp_path / "v.pt",
+            TrainSettings(epochs=1, batch_size=16, model_options={"face": True}),
+            val_path=_synthetic_h5(tmp_path / "v.h5", n=16, face_size=(40, 32)),
+            progress=False,
+        )
+    # an eyes-only model trained on a set with face patches is not given any at test time
+    from gazeaug.estimator import load_estimator
+    from gazeaug.evaluate import settings_from_meta
+
+    train(data, tmp_path / "eyes.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    eyes_only, eyes_meta = load_model(tmp_path / "eyes.pt")
+    assert not eyes_meta["uses_face"] and eyes_meta["normalization"]["face_patch_size_wh"] == [48, 48]
+    assert settings_from_meta(eyes_meta).face_patch_size_wh is None
+    assert load_estimator(tmp_path / "eyes.pt").normalization.face_patch_size_wh is None
+    assert settings_from_meta(meta).face_patch_size_wh == (48, 48)
     # a set without face patches cannot train it, nor can a file whose normalization makes none load it
     with pytest.raises(GazeAugError, match="has none"):
         train(

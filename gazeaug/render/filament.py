@@ -144,6 +144,8 @@ class FilamentRenderer:
 
     def __init__(self, settings: NormalizationSettings | None = None, **_: Any):
         self.settings = settings or NormalizationSettings()
+        if self.settings.face_patch_size_wh is not None:  # one image size per scene: the eye patch's
+            raise GazeAugError("the filament renderer renders eye patches only: a face patch needs --renderer raycast")
 
     def scene(self, mesh: RenderMesh) -> FilamentFaceScene:
         """Load one face (the renderer's image size is the patch size)."""
