@@ -368,8 +368,14 @@ def test_documented_npz_keys_are_the_written_ones(tmp_path: Path) -> None:
     from gazeaug.cli import main
 
     written: set[str] = set()
-    for args in (["normalize", "--gaze-target", "0", "100", "0"], ["render", "--seed", "1"]):
-        out = tmp_path / f"{args[0]}.npz"
+    for i, args in enumerate(
+        (
+            ["normalize", "--gaze-target", "0", "100", "0"],
+            ["render", "--seed", "1"],
+            ["normalize", "--gaze-target", "0", "100", "0", "--face-patch", "32", "32"],  # the optional keys
+        )
+    ):
+        out = tmp_path / f"{args[0]}{i}.npz"
         assert main([*args, "-o", str(out)]) == 0
         with np.load(out) as z:
             written |= set(z.files)
@@ -386,8 +392,20 @@ def test_documented_h5_schema_is_the_written_one(tmp_path: Path) -> None:
     from gazeaug.cli import main
 
     assert main(["simulate", "--rig", "screen", "--per-face", "2", "-o", str(tmp_path / "sim"), "--quiet"]) == 0
-    out = tmp_path / "a.h5"
-    assert main(["augment", str(tmp_path / "sim"), "-o", str(out), "--per-sample", "2", "--quiet"]) == 0
+    out = tmp_path / "a.h5"  # with the one optional column, face
+    args = [
+        "augment",
+        str(tmp_path / "sim"),
+        "-o",
+        str(out),
+        "--per-sample",
+        "2",
+        "--quiet",
+        "--face-patch",
+        "16",
+        "16",
+    ]
+    assert main(args) == 0
     datasets: set[str] = set()
     with h5py.File(out, "r") as f:
         f.visititems(lambda name, obj: datasets.add(name) if isinstance(obj, h5py.Dataset) else None)
