@@ -104,7 +104,7 @@ def evaluate_h5(model: Any, path: str | Path) -> dict[str, Any]:
     """Errors on a normalized training-set file (angles between predicted and true gaze vectors)."""
     data = H5TrainingSet(path)
     errs, subj, preds, trues = [], [], [], []
-    keys = (*H5TrainingSet.KEYS, "face") if uses_face(model) else H5TrainingSet.KEYS
+    keys = H5TrainingSet.batch_keys(uses_face(model))
     for batch in data.batches(512, keys=keys):
         pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], face=batch.get("face"))
         errs.append(angular_errors_deg(pred, batch["gaze"]))

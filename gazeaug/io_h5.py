@@ -99,7 +99,8 @@ def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_
     if not samples:
         raise GazeAugError("no samples to write")
     with_face = samples[0].face is not None and samples[0].face.image is not None
-    out: dict[str, list[Any]] = {k: [] for k in _dtypes(with_face)}
+    dtypes = _dtypes(with_face)
+    out: dict[str, list[Any]] = {k: [] for k in dtypes}
     for s in samples:
         if s.face is None or s.face.gaze is None or s.left.gaze is None or s.right.gaze is None:
             raise GazeAugError("training rows need a gaze label")
@@ -123,7 +124,7 @@ def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_
         out["source_index"].append(source_index)
         yp = s.meta.get("yaw_pitch_deg")
         out["sampled_yaw_pitch"].append(yp if yp is not None else [np.nan, np.nan])
-    return Rows({k: np.asarray(v, dtype=_dtypes(with_face)[k]) for k, v in out.items()})
+    return Rows({k: np.asarray(v, dtype=dtypes[k]) for k, v in out.items()})
 
 
 _DTYPES: dict[str, Any] = {
@@ -529,6 +530,11 @@ class H5TrainingSet:
 
     #: The columns :meth:`batches` yields.
     KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject")
+
+    @classmethod
+    def batch_keys(cls, face: bool) -> tuple[str, ...]:
+        """The columns a model's batches need: :attr:`KEYS`, and ``face`` for a model that reads it."""
+        return (*cls.KEYS, "face") if face else cls.KEYS
 
     def __init__(
         self,

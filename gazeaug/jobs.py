@@ -404,10 +404,8 @@ def _ray_work(task: _ShardTask) -> dict[str, Any]:
     # A name of its own for this attempt: an actor presumed lost that is still writing never
     # shares a file with the one redoing its block (both write the same rows; the last rename wins).
     mine = path.with_name(f"{path.stem}.{uuid.uuid4().hex[:12]}.h5")
-    eyes, face = task.patch_sizes
-    writer = H5Writer(
-        mine, task.attrs, eyes, face_patch_size_wh=face, compress=False
-    )  # read once by the driver, then deleted
+    eyes, face = task.patch_sizes  # uncompressed: read once by the driver, then deleted
+    writer = H5Writer(mine, task.attrs, eyes, face_patch_size_wh=face, compress=False)
     try:
         for outcome in _process_stream(task.samples):
             if outcome.skipped is not None:  # where it failed: a path one node cannot see is named with it

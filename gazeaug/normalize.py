@@ -173,8 +173,10 @@ class NormalizationSettings:
         return d
 
 
-#: The face fields' defaults (left out of a record without a face patch).
-_FACE_DEFAULTS: dict[str, Any] = {"face_patch_size_wh": None, "face_distance_mm": 600.0, "face_focal_px": 960.0}
+#: The face fields' defaults, as the dataclass declares them (left out of a record without a face patch).
+_FACE_DEFAULTS: dict[str, Any] = {
+    f.name: f.default for f in fields(NormalizationSettings) if f.name.startswith("face_")
+}
 
 
 def _is_number(v: Any) -> bool:

@@ -312,7 +312,7 @@ def prefetch_batches(
             out["face"] = tensor(batch["face"])
         return out
 
-    keys = (*H5TrainingSet.KEYS, "face") if face else H5TrainingSet.KEYS
+    keys = H5TrainingSet.batch_keys(face)
     if depth <= 0:
         with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
             for batch in it:
@@ -361,7 +361,7 @@ def train_inputs(
 
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
     errs = []
-    keys = (*H5TrainingSet.KEYS, "face") if uses_face(model) else H5TrainingSet.KEYS
+    keys = H5TrainingSet.batch_keys(uses_face(model))
     for batch in data.batches(batch_size, keys=keys):
         pred = predict_arrays(
             model, batch["left_eye"], batch["right_eye"], batch["head_pose"], batch_size, face=batch.get("face")

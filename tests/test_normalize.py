@@ -18,6 +18,16 @@ from gazeaug.errors import GazeAugError
 from gazeaug.normalize import NormalizationSettings, load_npz, normalize_image, save_npz
 
 
+def _zhang_rotation_by_hand(reference_mm, head_r):
+    """Zhang's normalizing rotation, written out: z to the reference point, x levelled by the head's x axis."""
+    forward = reference_mm / np.linalg.norm(reference_mm)
+    down = np.cross(forward, head_r[:, 0])
+    down /= np.linalg.norm(down)
+    right = np.cross(down, forward)
+    right /= np.linalg.norm(right)
+    return np.c_[right, down, forward].T
+
+
 def _zhang_by_hand(face_model_3xn, landmarks, camera_matrix, distortion, gaze_target):
     """Zhang's normalizeData, written out independently: returns per eye (R, W, gaze (p, y), head (p, y))."""
     ok, rvec, tvec = cv2.solvePnP(
@@ -36,12 +46,7 @@ def _zhang_by_hand(face_model_3xn, landmarks, camera_matrix, distortion, gaze_ta
     for side, cols in (("right", [0, 1]), ("left", [2, 3])):
         et = fc[:, cols].mean(axis=1)
         distance = np.linalg.norm(et)
-        forward = et / distance
-        down = np.cross(forward, head_r[:, 0])
-        down /= np.linalg.norm(down)
-        right = np.cross(down, forward)
-        right /= np.linalg.norm(right)
-        r = np.c_[right, down, forward].T
+        r = _zhang_rotation_by_hand(et, head_r)
         cam_n = np.array([[650.0, 0, 30], [0, 650.0, 18], [0, 0, 1]])
         w = cam_n @ np.diag([1.0, 1.0, 600.0 / distance]) @ r @ np.linalg.inv(camera_matrix)
         g = r @ (gaze_target - et)
@@ -228,12 +233,7 @@ def _zhang_face_warp_by_hand(face_model_3xn, head_r, head_t, camera_matrix, foca
     fc = head_r @ face_model_3xn + head_t.reshape(3, 1)
     centre = fc.mean(axis=1)
     distance = np.linalg.norm(centre)
-    forward = centre / distance
-    down = np.cross(forward, head_r[:, 0])
-    down /= np.linalg.norm(down)
-    right = np.cross(down, forward)
-    right /= np.linalg.norm(right)
-    r = np.c_[right, down, forward].T
+    r = _zhang_rotation_by_hand(centre, head_r)
     cam_n = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
     return cam_n @ np.diag([1.0, 1.0, distance_n / distance]) @ r @ np.linalg.inv(camera_matrix), r
 
