@@ -41,7 +41,7 @@ RENDERER_HELP = (
     "(GPU or Mesa) (default raycast)"
 )
 #: Help of ``--lr`` (train, experiment).
-LR_HELP = "AdamW learning rate, decayed by cosine to 1%% of it at the end (default 0.001)"
+LR_HELP = "AdamW learning rate, decayed by cosine to 1%% of it at the end (default 0.003)"
 
 _positive_int = _integer(1)
 _seed = _integer(0)  # numpy's generators take no negative seeds
@@ -355,7 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step (default: fitted to the training set's size, rows / 128 as a power of two, 32 to 256)",
     )
-    t.add_argument("--lr", type=finite_float, default=1e-3, help=LR_HELP)
+    t.add_argument("--lr", type=finite_float, default=3e-3, help=LR_HELP)
     t.add_argument(
         "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
     )
@@ -578,7 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step, both models (default: fitted to the augmented set's size, as gazeaug train fits it)",
     )
-    xp.add_argument("--lr", type=finite_float, default=1e-3, help=LR_HELP)
+    xp.add_argument("--lr", type=finite_float, default=3e-3, help=LR_HELP)
     _add_train_input_options(xp)
     _add_normalization_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
@@ -901,7 +901,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def _add_train_input_options(p: argparse.ArgumentParser) -> None:
-    """``--no-augment``, ``--input``, ``--no-mirror-average``: training-time augmentation, input mode, prediction."""
+    """``--no-augment``, ``--input``, ``--no-mirror-average``, ``--face``, ``--no-balance-axes``: training options."""
     p.add_argument(
         "--no-augment",
         action="store_true",
@@ -927,6 +927,12 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         help="the model also reads the normalized face patch (the data must carry one: made with --face-patch W H; "
         "default: the eyes and the head pose)",
     )
+    p.add_argument(
+        "--no-balance-axes",
+        action="store_true",
+        help="the plain L1 loss on (pitch, yaw); by default each axis is weighed by the inverse of its spread "
+        "over the training labels, so the narrower pitch counts as much as the yaw (docs/model.md)",
+    )
 
 
 def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
@@ -938,6 +944,7 @@ def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
         "input_mode": args.input,
         "mirror_average": not args.no_mirror_average,
         "model_options": {"face": True} if args.face else {},
+        "balance_axes": not args.no_balance_axes,
     }
 
 

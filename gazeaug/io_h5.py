@@ -70,7 +70,8 @@ __all__ = ["H5Writer", "H5TrainingSet", "rows_from_samples", "part_path", "read_
 
 REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
 _CHUNK = 64
-_BLOCK = 2048  # rows read at once when streaming batches
+_BLOCK = 2048  # rows read and shuffled at once when streaming batches (a window of pieces)
+_PIECE = 64  # the unit of the streaming shuffle's random order: one chunk (_CHUNK rows)
 #: Face-patch chunks hold at most this many bytes (h5py's default chunk cache, 1 MiB: a chunk larger
 #: than it is read back and recompressed whenever a flush ends inside it), and a streamed block of
 #: rows with faces at most :data:`_FACE_BLOCK_BYTES` of them.
@@ -588,6 +589,11 @@ class H5TrainingSet:
     def __len__(self) -> int:
         return len(self.rows)
 
+    @property
+    def gaze(self) -> NDArray[np.float32]:
+        """(K, 2) float32 radians (pitch, yaw), face-centre normalized frame: the gaze of the rows in use."""
+        return self._labels[self.rows, 2:]
+
     def read(self, keys: Sequence[str] | None = None) -> dict[str, Any]:
         """Whole columns of the rows in use, and the file attributes.
 
@@ -621,8 +627,12 @@ class H5TrainingSet:
         (pitch, yaw) radians, face-centre normalized frame; ``subject``: (B,) str; ``face`` (when
         asked for): (B, Hf, Wf, 3) uint8 RGB.
 
-        With ``rng``, blocks of rows come in a random order and are shuffled
-        within (streaming shuffle); without, in file order.
+        With ``rng``, the rows are shuffled across the whole file in bounded memory: pieces of
+        :data:`_PIECE` consecutive rows (one HDF5 chunk) in a random order, read a window of
+        :data:`_BLOCK` rows at a time (fewer with face patches) and shuffled within it, so every
+        batch mixes rows from all over the file. (Rows are stored source by source, and so person
+        by person: a batch drawn from one stretch of the file would hold a few people only.)
+        Without ``rng``, in file order.
 
         Raises:
             GazeAugError: a key the file lacks (``face`` in a file made without face patches).
@@ -634,22 +644,33 @@ class H5TrainingSet:
         size = _BLOCK
         if "face" in wanted and self.face_patch_size_wh is not None:  # bounded memory: faces are large
             fw, fh = self.face_patch_size_wh
-            size = max(64, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
-        blocks = [self.rows[i : i + size] for i in range(0, len(self.rows), size)]
-        order = rng.permutation(len(blocks)) if rng is not None else np.arange(len(blocks))
+            size = max(_PIECE, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
+        piece = _PIECE if rng is not None else size  # in file order: one read per window
+        pieces = [self.rows[i : i + piece] for i in range(0, len(self.rows), piece)]
+        order = rng.permutation(len(pieces)) if rng is not None else np.arange(len(pieces))
+        per_window = max(1, size // piece)
         carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
         carried = 0
+        in_memory = {  # read once when the file was opened
+            "subject": self.subjects,
+            "head_pose": self._labels[:, :2],
+            "gaze": self._labels[:, 2:],
+        }
         with h5py.File(self.path, "r") as f:
-            for b in order:
-                idx = blocks[b]
-                lo, hi = int(idx[0]), int(idx[-1]) + 1
-                sel = idx - lo
-                data = {k: f[k][lo:hi][sel] for k in wanted if k != "subject"}
-                data["subject"] = self.subjects[idx]
-                perm = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))
+            stored = {k: f[k] for k in wanted if k not in in_memory}
+            for w in range(0, len(order), per_window):
+                parts: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
+                window = [pieces[b] for b in order[w : w + per_window]]
+                for idx in window:
+                    lo, hi = int(idx[0]), int(idx[-1]) + 1
+                    for k in wanted:
+                        parts[k].append(in_memory[k][idx] if k in in_memory else stored[k][lo:hi][idx - lo])
+                data = {k: np.concatenate(v) for k, v in parts.items()}
+                n = sum(len(idx) for idx in window)
+                perm = rng.permutation(n) if rng is not None else np.arange(n)
                 for k in wanted:
                     carry[k].append(data[k][perm])
-                carried += len(idx)
+                carried += n
                 while carried >= batch_size:
                     joined = {k: np.concatenate(v) for k, v in carry.items()}
                     yield {k: v[:batch_size] for k, v in joined.items()}

@@ -12,8 +12,11 @@ import pytest
 from gazeaug.io_h5 import H5Writer, Rows
 
 
-def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0, face_size=None):
+def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0, face_size=None, runs=False):
     """A training set whose gaze pitch is readable from the images: brightness encodes it.
+
+    The rows' subjects alternate, or with ``runs`` come one after another (each a run of
+    ``n / len(subjects)`` rows, as augment writes them: source by source).
 
     With ``face_size`` (width, height) the rows carry face patches too (``face``), whose brightness
     encodes the gaze yaw, and the normalization record says so.
@@ -41,7 +44,9 @@ def synthetic_h5(path, n=96, subjects=("a", "b"), nan_rows=0, seed=0, face_size=
             "R_norm_left": eye3,
             "R_norm_right": eye3,
             "R_norm_face": eye3,
-            "subject": np.array([subjects[i % len(subjects)].encode() for i in range(n)]),
+            "subject": np.array(
+                [subjects[i * len(subjects) // n if runs else i % len(subjects)].encode() for i in range(n)]
+            ),
             "source_index": np.arange(n),
             "sampled_yaw_pitch": np.full((n, 2), np.nan),
         }

@@ -152,35 +152,66 @@ def test_resume_refuses_a_checkpoint_without_a_fingerprint(tmp_path):
         train(h5, tmp_path / "m.pt", s, resume=True, progress=False)
 
 
+def _interrupted_after_one_epoch(monkeypatch, h5, out, settings, recorded_as=lambda ck: ck):
+    """Train ``settings`` and stop after the first epoch's checkpoint, written as ``recorded_as`` makes it."""
+    import gazeaug.train as tr
+
+    real_save = tr._save
+
+    def save_then_die(obj, path):
+        real_save(recorded_as(obj), path)
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(tr, "_save", save_then_die)
+        with pytest.raises(KeyboardInterrupt):
+            tr.train(h5, out, settings, progress=False)
+
+
 @torch_needed
-def test_a_run_begun_under_the_older_translation_default_resumes_with_it(tmp_path):
+def test_a_run_begun_under_the_older_translation_default_resumes_with_it(tmp_path, monkeypatch):
     # shift_px was 2 by default before 2026-11-24; `gazeaug train --resume` has no option for it, so a
     # run interrupted then goes on with its own 2, recorded in the model; another value is refused
     import torch
 
-    import gazeaug.train as tr
     from gazeaug.train import TrainSettings, train
     from gazeaug.train_augment import TrainAugment
 
     h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
     out = tmp_path / "m.pt"
-    real_save = tr._save
-
-    def save_then_die(obj, path):
-        real_save(obj, path)
-        raise KeyboardInterrupt
-
-    tr._save = save_then_die
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            train(h5, out, TrainSettings(epochs=2, batch_size=16, augment=TrainAugment(shift_px=2)), progress=False)
-    finally:
-        tr._save = real_save
+    then = TrainSettings(epochs=2, batch_size=16, augment=TrainAugment(shift_px=2))
+    _interrupted_after_one_epoch(monkeypatch, h5, out, then)
     with pytest.raises(GazeAugError, match=r"other settings .*'shift_px': 2.* then, .*'shift_px': 4"):
         train(h5, out, TrainSettings(epochs=2, batch_size=16, augment=TrainAugment(shift_px=4)), resume=True)
     log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
     assert [r["epoch"] for r in log] == [1, 2]
     assert torch.load(out, weights_only=True)["train_settings"]["augment"]["shift_px"] == 2
+
+
+@torch_needed
+def test_a_run_begun_before_balanced_axes_and_lr_3e_3_resumes_as_it_began(tmp_path, monkeypatch):
+    # lr was 1e-3 and the loss the plain L1 before 2026-11-25: a checkpoint of then (which records
+    # no balance_axes) resumes with both, and its model file says so; another lr is still refused
+    import torch
+
+    from gazeaug.train import TrainSettings, train
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
+    out = tmp_path / "m.pt"
+
+    def as_then(ck):  # as the previous version wrote it
+        return dict(ck, settings={k: v for k, v in ck["settings"].items() if k != "balance_axes"})
+
+    then = TrainSettings(epochs=2, batch_size=16, lr=1e-3, balance_axes=False)
+    _interrupted_after_one_epoch(monkeypatch, h5, out, then, as_then)
+    assert "balance_axes" not in torch.load(tmp_path / "m.ckpt.pt", weights_only=True)["settings"]
+    with pytest.raises(GazeAugError, match=r"other settings \(lr: 0.001 then, 0.01 now\)"):
+        train(h5, out, TrainSettings(epochs=2, batch_size=16, lr=1e-2), resume=True)
+    log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
+    assert [r["epoch"] for r in log] == [1, 2]
+    made = torch.load(out, weights_only=True)
+    assert made["train_settings"]["lr"] == 1e-3 and made["train_settings"]["balance_axes"] is False
+    assert made["loss_weights_pitch_yaw"] == [1.0, 1.0]
 
 
 # ---------------------------------------------------------------------------------------------------------------------

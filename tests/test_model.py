@@ -211,6 +211,94 @@ def test_one_reader_of_the_training_set_schema(tmp_path):
             read(path)
 
 
+def test_shuffled_batches_mix_the_whole_file(tmp_path):
+    import h5py
+
+    # 16 subjects stored one after another, 256 rows each (augment writes source by source)
+    subjects = tuple(f"s{i:02d}" for i in range(16))
+    path = _synthetic_h5(tmp_path / "runs.h5", n=4096, subjects=subjects, runs=True)
+    with h5py.File(path, "r") as f:  # the truth, read without gazeaug
+        gaze, subject = f["gaze"][()], f["subject"][()]
+    assert len(set(subject[:2048].tolist())) == 8  # a 2048-row stretch of the file holds 8 subjects
+    row_of = {g.tobytes(): i for i, g in enumerate(gaze)}
+    assert len(row_of) == len(gaze)  # every row's gaze is its name
+    data = H5TrainingSet(path)
+    batches = list(data.batches(32, np.random.default_rng(3), keys=("gaze", "subject")))
+    seen = [row_of[g.tobytes()] for b in batches for g in b["gaze"]]
+    assert sorted(seen) == list(range(4096))  # one epoch: every row once
+    for b in batches:  # each row with its own subject
+        np.testing.assert_array_equal(b["subject"], subject[[row_of[g.tobytes()] for g in b["gaze"]]].astype(str))
+    # 32 rows drawn uniformly from 16 equal subjects hold 16 (1 - (15/16)^32) = 14.3 subjects on average;
+    # 32 drawn from a 2048-row stretch of the file at most 8
+    assert np.mean([len(set(b["subject"].tolist())) for b in batches]) > 12
+    # the same rng, the same batches; no rng, file order
+    again = list(data.batches(32, np.random.default_rng(3), keys=("gaze",)))
+    np.testing.assert_array_equal(np.concatenate([b["gaze"] for b in again]), gaze[seen])
+    ordered = np.concatenate([b["gaze"] for b in data.batches(100, None, keys=("gaze",))])
+    np.testing.assert_array_equal(ordered, gaze)
+    # a subject selection: its rows once each, both subjects in almost every batch
+    some = H5TrainingSet(path, subjects=["s03", "s11"])
+    chosen = list(some.batches(16, np.random.default_rng(1), keys=("gaze", "subject")))
+    picked = [row_of[g.tobytes()] for b in chosen for g in b["gaze"]]
+    assert sorted(picked) == list(range(768, 1024)) + list(range(2816, 3072))
+    assert sum(len(set(b["subject"].tolist())) == 2 for b in chosen) >= 0.9 * len(chosen)
+
+
+def test_axis_weights_by_hand():
+    from gazeaug.train import axis_weights
+
+    # pitch +-8 deg and yaw +-20 deg about 0 (three rows): sd 8 sqrt(2/3) = 6.532 and 20 sqrt(2/3) = 16.330,
+    # their mean 11.431; weights 11.431 / 6.532 = 1.75 and 11.431 / 16.330 = 0.70
+    w = axis_weights(np.radians([[0.0, 0.0], [8.0, 20.0], [-8.0, -20.0]]))
+    np.testing.assert_allclose(w, (1.75, 0.70), rtol=1e-12)
+    assert axis_weights(np.radians([[3.0, 5.0]])) == (1.0, 1.0)  # one row: no spread
+    assert axis_weights(np.radians([[3.0, 5.0], [4.0, 5.0]])) == (1.0, 1.0)  # one yaw for all
+    assert axis_weights(np.zeros((0, 2))) == (1.0, 1.0)
+    with pytest.raises(GazeAugError, match="balance_axes: expected true or false"):
+        TrainSettings(balance_axes="yes")
+
+
+def test_the_loss_weighs_each_axis_by_its_spread(tmp_path, monkeypatch):
+    import h5py
+    import torch
+
+    from gazeaug.models import MODELS, register_model
+
+    monkeypatch.setattr(MODELS, "_entries", dict(MODELS._entries))  # the test's model leaves with the test
+
+    @register_model("test_constant_zero")
+    def constant_zero():  # predicts (0, 0) whatever it is given; one weight, never moved at lr 1e-12
+        class Zero(torch.nn.Module):
+            def __init__(self):
+                super().__init__()
+                self.w = torch.nn.Parameter(torch.zeros(()))
+
+            def forward(self, left, right, head_pose):
+                return self.w * head_pose
+
+        return Zero()
+
+    path = _synthetic_h5(tmp_path / "t.h5", n=64)
+    with h5py.File(path, "r") as f:  # the truth, read without gazeaug
+        gaze = f["gaze"][()].astype(np.float64)
+    sd = gaze.std(axis=0)
+    w = sd.mean() / sd  # by hand: each axis by the inverse of its spread, the two averaging 1 for equal spreads
+    for balance, weights in ((True, w), (False, np.ones(2))):
+        s = TrainSettings(model="test_constant_zero", epochs=1, batch_size=16, lr=1e-12, balance_axes=balance)
+        log = train(path, tmp_path / f"m{balance}.pt", s, progress=False)
+        # the loss of a (0, 0) prediction: the mean over rows and axes of |gaze| times the axis weight
+        want = float((np.abs(gaze) * weights).mean())
+        assert log[0]["train_loss"] == pytest.approx(want, rel=1e-5)
+        made = torch.load(tmp_path / f"m{balance}.pt", weights_only=True)
+        np.testing.assert_allclose(made["loss_weights_pitch_yaw"], weights, rtol=1e-6)
+    # the command line: balanced by default at lr 3e-3, --no-balance-axes for the plain loss
+    args = ["train", str(path), "--model", "test_constant_zero", "--epochs", "1", "--batch-size", "16", "--quiet"]
+    for extra, balance in (([], True), (["--no-balance-axes"], False)):
+        assert main([*args, "-o", str(tmp_path / f"cli{balance}.pt"), *extra]) == 0
+        made = torch.load(tmp_path / f"cli{balance}.pt", weights_only=True)
+        assert made["train_settings"]["balance_axes"] is balance and made["train_settings"]["lr"] == 3e-3
+
+
 def test_model_files_that_are_not_ours(tmp_path):
     (tmp_path / "x.pt").write_bytes(b"not a model")
     with pytest.raises(GazeAugError, match="not a gazeaug model .truncated, damaged or not a PyTorch file"):
