@@ -2,7 +2,9 @@
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
 [--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]
-[--focal 650] [--distance 600] [--patch-size 60 36] [--no-antialias]``
+[--focal 650] [--distance 600] [--patch-size 60 36] [--no-antialias] [--lr 3e-3] [--no-balance-axes]``
+
+(``--lr 1e-3 --no-balance-axes`` trains as the defaults before 2026-11-25 did.)
 
 1. Simulates the training set: the 9 single-face photos of ``../shared/data/faces``
    (astronaut, business-person, sergey, pexels image00/01, AFLW2000 00202, 00302,
@@ -124,6 +126,12 @@ def run() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the augmented set's size")
     ap.add_argument("--batch-size", type=int, default=None, help="default: fitted to the augmented set's size")
+    ap.add_argument("--lr", type=float, default=TrainSettings.lr, help="default 3e-3 (1e-3 before 2026-11-25)")
+    ap.add_argument(
+        "--no-balance-axes",
+        action="store_true",
+        help="the plain L1 loss (TrainSettings.balance_axes False, the default before 2026-11-25)",
+    )
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
     ap.add_argument("--workers", type=int, default=2)
     _add_normalization_options(ap)  # --distance, --focal, --patch-size, --no-antialias, --face-patch, as gazeaug's
@@ -215,7 +223,11 @@ def run() -> None:
         distribution=rig.distribution(),
         # the library's defaults (not the built-in setup's shorter budget): fitted to the augmented set
         train=TrainSettings(
-            epochs=args.epochs, batch_size=args.batch_size, model_options={"face": True} if args.face else {}
+            epochs=args.epochs,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            balance_axes=not args.no_balance_axes,
+            model_options={"face": True} if args.face else {},
         ),
         workers=args.workers,
         seed=args.seed,

@@ -70,8 +70,7 @@ __all__ = ["H5Writer", "H5TrainingSet", "rows_from_samples", "part_path", "read_
 
 REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
 _CHUNK = 64
-_BLOCK = 2048  # rows read and shuffled at once when streaming batches (a window of pieces)
-_PIECE = 64  # the unit of the streaming shuffle's random order: one chunk (_CHUNK rows)
+_BLOCK = 2048  # rows read and shuffled at once when streaming batches (a window of chunk pieces)
 #: Face-patch chunks hold at most this many bytes (h5py's default chunk cache, 1 MiB: a chunk larger
 #: than it is read back and recompressed whenever a flush ends inside it), and a streamed block of
 #: rows with faces at most :data:`_FACE_BLOCK_BYTES` of them.
@@ -627,10 +626,10 @@ class H5TrainingSet:
         (pitch, yaw) radians, face-centre normalized frame; ``subject``: (B,) str; ``face`` (when
         asked for): (B, Hf, Wf, 3) uint8 RGB.
 
-        With ``rng``, the rows are shuffled across the whole file in bounded memory: pieces of
-        :data:`_PIECE` consecutive rows (one HDF5 chunk) in a random order, read a window of
-        :data:`_BLOCK` rows at a time (fewer with face patches) and shuffled within it, so every
-        batch mixes rows from all over the file. (Rows are stored source by source, and so person
+        With ``rng``, the rows are shuffled across the whole file in bounded memory: pieces (the
+        rows in use of one eye-patch chunk, :data:`_CHUNK` rows) in a random order, read a window
+        of about :data:`_BLOCK` rows at a time (fewer with face patches) and shuffled within it, so
+        every batch mixes rows from all over the file. (Rows are stored source by source, and so person
         by person: a batch drawn from one stretch of the file would hold a few people only.)
         Without ``rng``, in file order.
 
@@ -644,11 +643,18 @@ class H5TrainingSet:
         size = _BLOCK
         if "face" in wanted and self.face_patch_size_wh is not None:  # bounded memory: faces are large
             fw, fh = self.face_patch_size_wh
-            size = max(_PIECE, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
-        piece = _PIECE if rng is not None else size  # in file order: one read per window
-        pieces = [self.rows[i : i + piece] for i in range(0, len(self.rows), piece)]
+            size = max(_CHUNK, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
+        # pieces: the rows in use within one eye-patch chunk (a selection's gap never inside a read)
+        pieces = np.split(self.rows, np.flatnonzero(np.diff(self.rows // _CHUNK)) + 1) if len(self.rows) else []
         order = rng.permutation(len(pieces)) if rng is not None else np.arange(len(pieces))
-        per_window = max(1, size // piece)
+        windows: list[list[NDArray[np.int64]]] = [[]]
+        filled = 0
+        for b in order:  # windows of at least `size` rows
+            if filled >= size:
+                windows.append([])
+                filled = 0
+            windows[-1].append(pieces[b])
+            filled += len(pieces[b])
         carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
         carried = 0
         in_memory = {  # read once when the file was opened
@@ -658,15 +664,23 @@ class H5TrainingSet:
         }
         with h5py.File(self.path, "r") as f:
             stored = {k: f[k] for k in wanted if k not in in_memory}
-            for w in range(0, len(order), per_window):
-                parts: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
-                window = [pieces[b] for b in order[w : w + per_window]]
+            for window in windows:
+                if not window:
+                    continue
+                # pieces that follow each other in the file (file order) are read at once
+                runs: list[NDArray[np.int64]] = []
                 for idx in window:
+                    if runs and idx[0] == runs[-1][-1] + 1:
+                        runs[-1] = np.concatenate([runs[-1], idx])
+                    else:
+                        runs.append(idx)
+                parts: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
+                for idx in runs:
                     lo, hi = int(idx[0]), int(idx[-1]) + 1
                     for k in wanted:
                         parts[k].append(in_memory[k][idx] if k in in_memory else stored[k][lo:hi][idx - lo])
                 data = {k: np.concatenate(v) for k, v in parts.items()}
-                n = sum(len(idx) for idx in window)
+                n = sum(len(idx) for idx in runs)
                 perm = rng.permutation(n) if rng is not None else np.arange(n)
                 for k in wanted:
                     carry[k].append(data[k][perm])

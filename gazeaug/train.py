@@ -83,6 +83,8 @@ _OLDER_AUGMENT_DEFAULTS: tuple[tuple[str, Any], ...] = (("shift_px", 2),)
 #: :data:`_OLDER_AUGMENT_DEFAULTS`: a checkpoint begun under the older default resumes with it where
 #: the resuming settings leave the field at today's default. Both changed 2026-11-25 (docs/model.md).
 _OLDER_DEFAULTS: tuple[tuple[str, Any], ...] = (("lr", 1e-3), ("balance_axes", False))
+#: :func:`axis_weights` takes an axis's spread as at least this share of the other's.
+MIN_SPREAD_RATIO = 0.25
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.
 AUTO_MIN_EPOCHS = 10
 #: The most epochs :meth:`TrainSettings.fitted` gives: a set of under 125 rows (250k / 2000) would
@@ -235,13 +237,16 @@ def axis_weights(gaze: NDArray[Any]) -> tuple[float, float]:
 
     Each axis is weighed by the inverse of its standard deviation over the training rows, scaled
     so the two weights average to 1 where the spreads are alike (``(s_p + s_y) / 2 / s``): on issue
-    13's augmented wheelchair set (sd 8.1 and 18.9 deg) 1.67 and 0.71. (1, 1) when an axis has no
-    spread (fewer than two rows, or one gaze for all).
+    13's augmented wheelchair set (sd 8.1 and 18.9 deg) 1.67 and 0.71. A spread is taken as at
+    least :data:`MIN_SPREAD_RATIO` of the other (weights at most 2.5 and 0.625), so a set whose
+    gaze barely moves on one axis does not ignore the other. (1, 1) when an axis has no spread
+    (fewer than two rows, or one gaze for all).
     """
     g = np.asarray(gaze, dtype=np.float64).reshape(-1, 2)
     sd = g.std(axis=0) if len(g) > 1 else np.zeros(2)
     if not (np.isfinite(sd).all() and (sd > 1e-9).all()):
         return (1.0, 1.0)
+    sd = np.maximum(sd, MIN_SPREAD_RATIO * sd.max())
     w = sd.mean() / sd
     return (float(w[0]), float(w[1]))
 

@@ -214,34 +214,55 @@ def test_one_reader_of_the_training_set_schema(tmp_path):
 def test_shuffled_batches_mix_the_whole_file(tmp_path):
     import h5py
 
-    # 16 subjects stored one after another, 256 rows each (augment writes source by source)
+    # 16 subjects stored one after another, 250 rows each (augment writes source by source; 250 is no
+    # multiple of the 64-row chunks, so subjects begin and end inside chunks)
     subjects = tuple(f"s{i:02d}" for i in range(16))
-    path = _synthetic_h5(tmp_path / "runs.h5", n=4096, subjects=subjects, runs=True)
+    path = _synthetic_h5(tmp_path / "runs.h5", n=4000, subjects=subjects, runs=True)
     with h5py.File(path, "r") as f:  # the truth, read without gazeaug
         gaze, subject = f["gaze"][()], f["subject"][()]
-    assert len(set(subject[:2048].tolist())) == 8  # a 2048-row stretch of the file holds 8 subjects
+    assert len(set(subject[:2048].tolist())) == 9  # a 2048-row stretch of the file holds 9 subjects
     row_of = {g.tobytes(): i for i, g in enumerate(gaze)}
     assert len(row_of) == len(gaze)  # every row's gaze is its name
     data = H5TrainingSet(path)
     batches = list(data.batches(32, np.random.default_rng(3), keys=("gaze", "subject")))
     seen = [row_of[g.tobytes()] for b in batches for g in b["gaze"]]
-    assert sorted(seen) == list(range(4096))  # one epoch: every row once
+    assert sorted(seen) == list(range(4000))  # one epoch: every row once
     for b in batches:  # each row with its own subject
         np.testing.assert_array_equal(b["subject"], subject[[row_of[g.tobytes()] for g in b["gaze"]]].astype(str))
     # 32 rows drawn uniformly from 16 equal subjects hold 16 (1 - (15/16)^32) = 14.3 subjects on average;
-    # 32 drawn from a 2048-row stretch of the file at most 8
+    # 32 drawn from a 2048-row stretch of the file at most 9
     assert np.mean([len(set(b["subject"].tolist())) for b in batches]) > 12
     # the same rng, the same batches; no rng, file order
     again = list(data.batches(32, np.random.default_rng(3), keys=("gaze",)))
     np.testing.assert_array_equal(np.concatenate([b["gaze"] for b in again]), gaze[seen])
     ordered = np.concatenate([b["gaze"] for b in data.batches(100, None, keys=("gaze",))])
     np.testing.assert_array_equal(ordered, gaze)
-    # a subject selection: its rows once each, both subjects in almost every batch
+    # selections with gaps inside chunks: their rows once each, in file order without rng, both subjects in
+    # almost every batch, and no read reaches beyond the chunks that hold the rows
     some = H5TrainingSet(path, subjects=["s03", "s11"])
-    chosen = list(some.batches(16, np.random.default_rng(1), keys=("gaze", "subject")))
+    want = list(range(750, 1000)) + list(range(2750, 3000))
+    chosen = list(some.batches(16, np.random.default_rng(1), keys=("gaze", "subject", "left_eye")))
     picked = [row_of[g.tobytes()] for b in chosen for g in b["gaze"]]
-    assert sorted(picked) == list(range(768, 1024)) + list(range(2816, 3072))
+    assert sorted(picked) == want
     assert sum(len(set(b["subject"].tolist())) == 2 for b in chosen) >= 0.9 * len(chosen)
+    ordered = np.concatenate([b["gaze"] for b in some.batches(64, None, keys=("gaze", "left_eye"))])
+    np.testing.assert_array_equal(ordered, gaze[want])
+    reads = []
+    real = h5py.Dataset.__getitem__
+
+    def counted(self, key):
+        if self.name == "/left_eye" and isinstance(key, slice):
+            reads.append((key.start, key.stop))
+        return real(self, key)
+
+    h5py.Dataset.__getitem__ = counted
+    try:
+        for rng in (np.random.default_rng(2), None):
+            list(some.batches(16, rng, keys=("left_eye",)))
+    finally:
+        h5py.Dataset.__getitem__ = real
+    assert reads and all(lo >= 750 // 64 * 64 and hi <= 3000 and not (1000 <= lo < 2750) for lo, hi in reads)
+    assert all(not (lo < 1000 and hi > 2750) for lo, hi in reads)  # never across the excluded subjects
 
 
 def test_axis_weights_by_hand():
@@ -251,6 +272,9 @@ def test_axis_weights_by_hand():
     # their mean 11.431; weights 11.431 / 6.532 = 1.75 and 11.431 / 16.330 = 0.70
     w = axis_weights(np.radians([[0.0, 0.0], [8.0, 20.0], [-8.0, -20.0]]))
     np.testing.assert_allclose(w, (1.75, 0.70), rtol=1e-12)
+    # pitch +-1 deg against yaw +-20: the pitch's spread taken as a quarter of the yaw's (5 and 20 deg
+    # times sqrt(2/3)), weights 12.5 / 5 = 2.5 and 12.5 / 20 = 0.625: the yaw still counts
+    np.testing.assert_allclose(axis_weights(np.radians([[0, 0], [1, 20], [-1, -20]])), (2.5, 0.625), rtol=1e-12)
     assert axis_weights(np.radians([[3.0, 5.0]])) == (1.0, 1.0)  # one row: no spread
     assert axis_weights(np.radians([[3.0, 5.0], [4.0, 5.0]])) == (1.0, 1.0)  # one yaw for all
     assert axis_weights(np.zeros((0, 2))) == (1.0, 1.0)
