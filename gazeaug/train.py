@@ -622,6 +622,34 @@ def _data_selection(
     }
 
 
+def _recorded_settings(then: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's settings with what an older gazeaug did not record filled in as it trained."""
+    out = {**_LEGACY_SETTINGS, **then}
+    if isinstance(out.get("augment"), dict):  # an augment record from before a field existed
+        out["augment"] = {**_LEGACY_AUGMENT, **out["augment"]}
+    return out
+
+
+def _with_older_defaults(s: TrainSettings, recorded: dict[str, Any]) -> TrainSettings:
+    """``s`` resuming a run begun under an older default (:data:`_OLDER_DEFAULTS`, :data:`_OLDER_AUGMENT_DEFAULTS`).
+
+    Where the run recorded the older default and ``s`` leaves the field at today's, the run goes on
+    with its own value (``gazeaug train --resume`` cannot tell a default from a value given).
+    """
+    default = TrainSettings()
+    older = {k: v for k, v in _OLDER_DEFAULTS if recorded.get(k) == v and getattr(s, k) == getattr(default, k)}
+    then_aug = recorded.get("augment")
+    if isinstance(then_aug, dict):
+        aug = {
+            k: v
+            for k, v in _OLDER_AUGMENT_DEFAULTS
+            if then_aug.get(k) == v and getattr(s.augment, k) == getattr(default.augment, k)
+        }
+        if aug:
+            older["augment"] = replace(s.augment, **aug)
+    return replace(s, **older)
+
+
 def _resumed_sizes(s: TrainSettings, then: dict[str, Any]) -> TrainSettings:
     """``s`` with the epochs and batch size it leaves to None taken from ``then``, a checkpoint's settings.
 
@@ -707,9 +735,7 @@ def _train(
         ck = _load_plain(ckpt_path, "gazeaug checkpoint")
         if isinstance(ck.get("settings"), dict):
             s = _resumed_sizes(s, ck["settings"])  # left to None: the run being resumed decided them
-            recorded, default = {**_LEGACY_SETTINGS, **ck["settings"]}, TrainSettings()
-            older = {k: v for k, v in _OLDER_DEFAULTS if recorded.get(k) == v and getattr(s, k) == getattr(default, k)}
-            s = replace(s, **older)  # begun under an older default: it goes on with it
+            s = _with_older_defaults(s, _recorded_settings(ck["settings"]))
     s = s.fitted(len(data))  # epochs and batch size left to the data size: fixed now, recorded in the files
     n_epochs, batch_size = int(s.epochs or 0), int(s.batch_size or 0)
     # recorded in the model and used by predict and evaluate: checked now, not after the training
@@ -765,18 +791,7 @@ def _train(
         then_settings = ck.get("settings")
         if not isinstance(then_settings, dict):
             raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (its 'settings' are not a dict)")
-        then_all = {**_LEGACY_SETTINGS, **then_settings}
-        if isinstance(then_all.get("augment"), dict):  # an augment record from before a field existed
-            then_all["augment"] = {**_LEGACY_AUGMENT, **then_all["augment"]}
-        then_aug, now_default = then_all.get("augment"), TrainAugment()
-        if isinstance(then_aug, dict):
-            older = {
-                k: v
-                for k, v in _OLDER_AUGMENT_DEFAULTS
-                if then_aug.get(k) == v and getattr(s.augment, k) == getattr(now_default, k)
-            }
-            if older:  # begun under an older default: it goes on with it
-                s = replace(s, augment=replace(s.augment, **older))
+        then_all = _recorded_settings(then_settings)
         # a checkpoint from before mirror averaging trained as every run does (it changes only the
         # prediction): it resumes with either setting; a recorded one must match, like every setting
         then_all.setdefault("mirror_average", s.mirror_average)
