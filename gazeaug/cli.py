@@ -197,14 +197,15 @@ def _add_distribution_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_eyes_option(p: argparse.ArgumentParser) -> None:
+def _add_eyes_option(
+    p: argparse.ArgumentParser, default: str = "each sample keeps its source's gaze in the head, the paper's method"
+) -> None:
     p.add_argument(
         "--redirect-eyes",
         action="store_true",
         help="re-make the eyes as 3D eyeballs turned to the --rig's targets, head poses and targets drawn as the "
         "rig draws them, so that the set has the application's eye-in-head gaze (needs --rig and MediaPipe's "
-        "478 landmarks; docs/gazeaug.md) (default: each sample keeps its source's gaze in the head, the paper's "
-        "method)",
+        f"478 landmarks; docs/gazeaug.md) (default: {default})",
     )
 
 
@@ -563,7 +564,18 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument(
         "--per-sample", type=_positive_int, default=4, help="K augmented samples per training sample (default 4)"
     )
-    _add_eyes_option(xp)
+    _add_eyes_option(
+        xp,
+        "with --train/--test each sample keeps its source's gaze in the head, the paper's method; the built-in "
+        f"setup redirects the eyes, to --rig {BUILTIN_EXPERIMENT_RIG} unless another is given",
+    )
+    xp.add_argument(
+        "--keep-eyes",
+        action="store_true",
+        help="the paper's method on the built-in setup: each augmented sample keeps its source's gaze in the head, "
+        "head poses from the distribution options (default there: --rig wheelchair --redirect-eyes, the rig its "
+        "test set is simulated in; with --train/--test keeping the eyes is the default)",
+    )
     xp.add_argument(
         "--epochs",
         type=_positive_int,
@@ -1214,6 +1226,31 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The rig the built-in experiment's augmentation targets unless told otherwise: the one its test set is
+#: simulated in (:func:`gazeaug.experiment.builtin_setup`).
+BUILTIN_EXPERIMENT_RIG = "wheelchair"
+
+
+def _builtin_redirects(args: argparse.Namespace) -> None:
+    """The built-in experiment's default recipe: ``--redirect-eyes``, ``--rig wheelchair`` unless another is given.
+
+    Keeping the eyes (the paper's method) trains on the screen task's gaze relative to the head, which
+    lies far from the wheelchair task's: such models read no eyes of the test person, and their
+    difference is a difference of global offsets (docs/model.md, "The built-in setup").
+    """
+    from .errors import GazeAugError
+
+    given = [f"--{n.replace('_', '-')}" for n in _DISTRIBUTION_OPTIONS if n != "rig" and getattr(args, n) is not None]
+    if given and args.rig is None:
+        raise GazeAugError(
+            f"the built-in experiment redirects the eyes to a rig's targets, and the rig sets the head poses: "
+            f"give --keep-eyes to augment with {', '.join(given)} (the paper's method), or --rig"
+        )
+    args.redirect_eyes = True
+    if args.rig is None:
+        args.rig = BUILTIN_EXPERIMENT_RIG
+
+
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
     from .experiment import (
@@ -1235,6 +1272,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise GazeAugError("--test-same-rig goes with --train and --test (the built-in setup simulates its own)")
     if args.per_face is not None and (args.train is not None or args.large):
         raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
+    if args.keep_eyes and args.redirect_eyes:
+        raise GazeAugError("give --keep-eyes (the paper's method) or --redirect-eyes, not both")
+    if args.train is None and not args.keep_eyes:
+        _builtin_redirects(args)
     distribution = _distribution(args)  # a bad rig, distribution or patch is refused before minutes of work
     normalization = _settings(args)
     if args.face and normalization.face_patch_size_wh is None:

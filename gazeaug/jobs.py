@@ -20,8 +20,10 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+import sys
 import time
 import uuid
+import warnings
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +143,13 @@ class SampleOutcome:
 _STATE: dict[str, Any] = {}
 
 
+def _one_line_warning(
+    message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None
+) -> None:
+    """A worker process's warnings, one line each on stderr, the way the command line shows its own."""
+    print(f"gazeaug: warning: {message}", file=sys.stderr)
+
+
 def _worker_init(settings: JobSettings, threads: int = 0) -> None:
     """Per-process state: one landmark detector and one renderer, reused for every sample.
 
@@ -156,6 +165,7 @@ def _worker_init(settings: JobSettings, threads: int = 0) -> None:
 
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: no traceback per worker
         cv2.setNumThreads(1)  # no nested thread pools in OpenCV
+        warnings.showwarning = _one_line_warning  # as the command line shows the parent's: no source lines
     _STATE["detector"] = default_landmark_model()
     if settings.kind == "augment":
         from .render import create_renderer

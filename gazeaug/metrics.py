@@ -160,10 +160,12 @@ def bias_removed_error_deg(pred: ArrayLike, true: ArrayLike) -> float:
 
 
 def _r(x: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+    if len(x) < 2:  # before the means: an empty selection has none (and numpy would warn)
+        return math.nan
     dx, dy = x - x.mean(), y - y.mean()
     sx, sy = float(np.sqrt((dx * dx).sum())), float(np.sqrt((dy * dy).sum()))
     # a spread at rounding level (a constant predictor's float noise) is no spread
-    if len(x) < 2 or sx <= 1e-12 * max(1.0, float(np.abs(x).max())) or sy <= 1e-12 * max(1.0, float(np.abs(y).max())):
+    if sx <= 1e-12 * max(1.0, float(np.abs(x).max())) or sy <= 1e-12 * max(1.0, float(np.abs(y).max())):
         return math.nan
     return float(np.clip((dx * dy).sum() / (sx * sy), -1.0, 1.0))
 

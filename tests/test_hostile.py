@@ -852,3 +852,18 @@ def test_a_flush_interrupted_half_way_writes_no_row_twice(tmp_path):
     with h5py.File(part_path(out), "r") as f:
         assert f["left_eye"].shape[0] == 8 and f["gaze"].shape[0] == 8 and int(f.attrs["rows_done"]) == 8
         np.testing.assert_array_equal(f["source_index"][()], src["source_index"])
+
+
+def test_a_worker_process_shows_a_warning_as_one_line():
+    # workers=N runs in spawned processes, which the command line's warning display does not reach: a
+    # ReprojectionWarning used to print as Python's two lines (file:line and the source line)
+    code = (
+        "import warnings\n"
+        "from gazeaug.jobs import JobSettings, _worker_init\n"
+        "_worker_init(JobSettings(kind='normalize-dataset'), 1)\n"
+        "warnings.warn('landmark 291 lies 29.7 px from its reprojection', UserWarning)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if "29.7 px" in ln or "warn(" in ln]
+    assert lines == ["gazeaug: warning: landmark 291 lies 29.7 px from its reprojection"], res.stderr

@@ -214,17 +214,59 @@ def test_augment_draws_eyes_per_sample(tmp_path, monkeypatch):
 
 
 def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
-    assert main(["experiment", "-o", str(tmp_path / "xp"), "--redirect-eyes", "--per-face", "2", "--quiet"]) == 2
+    (tmp_path / "train").mkdir()
+    (tmp_path / "test").mkdir()
+    args = ["experiment", "--train", str(tmp_path / "train"), "--test", str(tmp_path / "test")]
+    assert main([*args, "-o", str(tmp_path / "xp"), "--redirect-eyes", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--redirect-eyes" in err[0] and "--rig" in err[0]
+    assert not (tmp_path / "xp").exists()  # refused before any work
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--keep-eyes", "--redirect-eyes"], "--keep-eyes"),
+        (["--yaw-mean", "5", "--pitch-std", "3"], "--keep-eyes to augment with --yaw-mean, --pitch-std"),
+    ],
+)
+def test_cli_builtin_experiment_refuses_a_mixed_recipe(tmp_path, capsys, extra, named):
+    # the built-in setup redirects the eyes to the rig's targets: a distribution without a rig asks for
+    # the paper's method by name instead of being silently ignored
+    assert main(["experiment", "-o", str(tmp_path / "xp"), *extra, "--per-face", "2", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and named in err[0], err
     assert not (tmp_path / "xp").exists()  # refused before any simulation
 
 
-def test_cli_experiment_redirect_eyes_reports_it(tmp_path):
+def test_cli_builtin_experiment_keep_eyes_is_the_papers_method(tmp_path, monkeypatch):
+    import gazeaug.experiment as xp_mod
+    from gazeaug.sampling import HeadPoseDistribution
+
+    seen = {}
+
+    def setup(out, **kw):
+        return xp_mod.BuiltinSetup(tmp_path / "a", tmp_path / "b", tmp_path / "c")
+
+    def run(train, test, out, settings, **kw):
+        seen["settings"] = settings
+        raise KeyboardInterrupt  # stop here: only the recipe is under test
+
+    monkeypatch.setattr(xp_mod, "builtin_setup", setup)
+    monkeypatch.setattr(xp_mod, "run_experiment", run)
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--keep-eyes", "--quiet"]) == 130
+    s = seen["settings"]
+    assert s.eyes == "keep" and s.rig is None
+    assert s.distribution == HeadPoseDistribution.from_variance(0.0, 30.0, 10.0, 10.0)  # the paper's
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--rig", "screen", "--quiet"]) == 130
+    assert seen["settings"].eyes == "redirect" and seen["settings"].rig.name == "screen"
+
+
+def test_cli_builtin_experiment_redirects_the_eyes_by_default(tmp_path):
     import json
 
     xp = tmp_path / "xp"
-    args = ["experiment", "-o", str(xp), "--rig", "wheelchair", "--redirect-eyes", "--per-face", "2"]
+    args = ["experiment", "-o", str(xp), "--per-face", "2"]  # the built-in recipe: --rig wheelchair --redirect-eyes
     assert main([*args, "--epochs", "1", "--seeds", "1", "--quiet"]) == 0
     settings = json.loads((xp / "results.json").read_text())["settings"]
     assert settings["eyes"] == "redirect" and settings["rig"] == "wheelchair"
