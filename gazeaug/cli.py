@@ -348,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         default=None,
         help="passes over the training set (default: fitted to its size, enough to show the model "
-        "250k samples, at least 10, at most 2000)",
+        "500k samples, at least 10, at most 2000)",
     )
     t.add_argument(
         "--batch-size",
@@ -582,7 +582,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="epochs of the augmented model; the original model gets as many optimizer steps "
         "(default: fitted to the augmented set's size as gazeaug train fits them; the built-in setup "
-        "fits them for 100k samples instead of 250k)",
+        "fits them for 100k samples instead of 500k)",
     )
     xp.add_argument(
         "--batch-size",

@@ -88,7 +88,7 @@ MIN_STEPS_BATCHNORM = 200
 
 #: The training hyper-parameters of the built-in simulated setup: the epochs and batch size fitted
 #: to the augmented set's size (:meth:`gazeaug.train.TrainSettings.fitted`) for 100k samples (the
-#: library's default is 250k: six runs of that would not fit the built-in run's half hour on two
+#: library's default is 500k: six runs of that would not fit the built-in run's half hour on two
 #: cores), the original model trained as many optimizer steps.
 BUILTIN_TRAIN = TrainSettings(auto_samples=100_000)
 

@@ -81,13 +81,13 @@ _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0}
 _OLDER_AUGMENT_DEFAULTS: tuple[tuple[str, Any], ...] = (("shift_px", 2),)
 #: Training defaults that changed, as (field, the default before), handled like
 #: :data:`_OLDER_AUGMENT_DEFAULTS`: a checkpoint begun under the older default resumes with it where
-#: the resuming settings leave the field at today's default. Both changed 2026-11-25 (docs/model.md).
-_OLDER_DEFAULTS: tuple[tuple[str, Any], ...] = (("lr", 1e-3), ("balance_axes", False))
+#: the resuming settings leave the field at today's default. All three changed 2026-11-25 (docs/model.md).
+_OLDER_DEFAULTS: tuple[tuple[str, Any], ...] = (("lr", 1e-3), ("balance_axes", False), ("auto_samples", 250_000))
 #: :func:`axis_weights` takes an axis's spread as at least this share of the other's.
 MIN_SPREAD_RATIO = 0.25
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.
 AUTO_MIN_EPOCHS = 10
-#: The most epochs :meth:`TrainSettings.fitted` gives: a set of under 125 rows (250k / 2000) would
+#: The most epochs :meth:`TrainSettings.fitted` gives: a set of under 250 rows (500k / 2000) would
 #: otherwise train for many thousands of one-step epochs, each writing a checkpoint that holds the
 #: whole log (24 rows: 10417 epochs, 8.9 min on 2 cores), to memorise a set too small to generalize.
 AUTO_MAX_EPOCHS = 2000
@@ -107,9 +107,9 @@ class TrainSettings:
             :data:`AUTO_MIN_EPOCHS`, at most :data:`AUTO_MAX_EPOCHS`).
         batch_size: samples per step (default None: fitted to the data size by :meth:`fitted`,
             about ``rows / 128`` rounded to a power of two, from 32 to 256).
-        auto_samples: how many samples a run with ``epochs`` None shows the model (default 250000:
-            on 1800 simulated images, 270k samples gave 8.6 deg on new people, 540k 8.7, 54k 12.0;
-            docs/model.md).
+        auto_samples: how many samples a run with ``epochs`` None shows the model (default 500000,
+            250000 before 2026-11-25: with today's training-time augmentation the model underfits
+            at 250k; on issue 13's benchmark 500k gave AUGMENTED_FIGURE; docs/model.md).
         lr: AdamW learning rate (default 3e-3; 1e-3 before 2026-11-25), decayed by cosine to 1% at
             the end; in (0, 10].
         weight_decay: Adam weight decay (default 1e-4); in [0, 10).
@@ -138,7 +138,7 @@ class TrainSettings:
     model_options: dict[str, Any] = field(default_factory=dict)
     epochs: int | None = None
     batch_size: int | None = None
-    auto_samples: int = 250_000
+    auto_samples: int = 500_000
     lr: float = 3e-3
     weight_decay: float = 1e-4
     seed: int = 0

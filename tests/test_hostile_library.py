@@ -189,9 +189,10 @@ def test_a_run_begun_under_the_older_translation_default_resumes_with_it(tmp_pat
 
 
 @torch_needed
-def test_a_run_begun_before_balanced_axes_and_lr_3e_3_resumes_as_it_began(tmp_path, monkeypatch):
-    # lr was 1e-3 and the loss the plain L1 before 2026-11-25: a checkpoint of then (which records
-    # no balance_axes) resumes with both, and its model file says so; another lr is still refused
+def test_a_run_begun_before_the_defaults_of_2026_11_25_resumes_as_it_began(tmp_path, monkeypatch):
+    # lr was 1e-3, the loss the plain L1 and auto_samples 250k before 2026-11-25: a checkpoint of then
+    # (which records no balance_axes) resumes with all three, and its model file says so; another lr
+    # is still refused
     import torch
 
     from gazeaug.train import TrainSettings, train
@@ -202,7 +203,7 @@ def test_a_run_begun_before_balanced_axes_and_lr_3e_3_resumes_as_it_began(tmp_pa
     def as_then(ck):  # as the previous version wrote it
         return dict(ck, settings={k: v for k, v in ck["settings"].items() if k != "balance_axes"})
 
-    then = TrainSettings(epochs=2, batch_size=16, lr=1e-3, balance_axes=False)
+    then = TrainSettings(epochs=2, batch_size=16, lr=1e-3, balance_axes=False, auto_samples=250_000)
     _interrupted_after_one_epoch(monkeypatch, h5, out, then, as_then)
     assert "balance_axes" not in torch.load(tmp_path / "m.ckpt.pt", weights_only=True)["settings"]
     with pytest.raises(GazeAugError, match=r"other settings \(lr: 0.001 then, 0.01 now\)"):
@@ -211,6 +212,7 @@ def test_a_run_begun_before_balanced_axes_and_lr_3e_3_resumes_as_it_began(tmp_pa
     assert [r["epoch"] for r in log] == [1, 2]
     made = torch.load(out, weights_only=True)
     assert made["train_settings"]["lr"] == 1e-3 and made["train_settings"]["balance_axes"] is False
+    assert made["train_settings"]["auto_samples"] == 250_000
     assert made["loss_weights_pitch_yaw"] == [1.0, 1.0]
 
 

@@ -120,23 +120,23 @@ def test_bad_training_inputs(tmp_path):
 
 def test_epochs_and_batch_fitted_to_the_data_size():
     # hand-derived: batch = 2 ** round(log2(rows / 128)) within [32, 256];
-    # epochs = min(2000, max(10, ceil(250000 / rows)))
+    # epochs = min(2000, max(10, ceil(500000 / rows)))
     cases = {
-        240: (32, 1042),  # 240 / 128 = 1.9 -> 2 -> 32 (the floor); 250000 / 240 = 1041.7 -> 1042
-        1440: (32, 174),  # 11.25 -> 8 -> 32; 173.6 -> 174
-        9000: (64, 28),  # 70.3 -> log2 6.14 -> 64; 27.8 -> 28
-        20000: (128, 13),  # 156.25 -> log2 7.29 -> 128; 12.5 -> 13
-        100000: (256, 10),  # 781 -> 256 (the ceiling); 2.5 -> 10 (the floor of epochs)
-        24: (32, 2000),  # 0.19 -> 32; 250000 / 24 = 10416.7 -> 10417 -> 2000 (the ceiling of epochs)
-        125: (32, 2000),  # 250000 / 125 = 2000 exactly
-        126: (32, 1985),  # 1984.1 -> 1985
+        480: (32, 1042),  # 480 / 128 = 3.75 -> log2 1.91 -> 2 -> 4 -> 32 (the floor); 500000 / 480 = 1041.7 -> 1042
+        1440: (32, 348),  # 11.25 -> 8 -> 32; 347.2 -> 348
+        9000: (64, 56),  # 70.3 -> log2 6.14 -> 64; 55.6 -> 56
+        20000: (128, 25),  # 156.25 -> log2 7.29 -> 128; 25 exactly
+        100000: (256, 10),  # 781 -> 256 (the ceiling); 5 -> 10 (the floor of epochs)
+        24: (32, 2000),  # 0.19 -> 32; 500000 / 24 = 20833.3 -> 2000 (the ceiling of epochs)
+        250: (32, 2000),  # 500000 / 250 = 2000 exactly
+        251: (32, 1993),  # 1992.03 -> 1993
     }
     for rows, (batch, epochs) in cases.items():
         f = TrainSettings().fitted(rows)
         assert (f.batch_size, f.epochs) == (batch, epochs), rows
     kept = TrainSettings(epochs=3, batch_size=7).fitted(240)
     assert (kept.batch_size, kept.epochs) == (7, 3)
-    assert TrainSettings(batch_size=64).fitted(240).epochs == 1042
+    assert TrainSettings(batch_size=64).fitted(480).epochs == 1042
     with pytest.raises(GazeAugError, match="rows"):
         TrainSettings().fitted(0)
     with pytest.raises(GazeAugError, match="batch size"):
