@@ -165,8 +165,10 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
 _DISTRIBUTION_OPTIONS = ("yaw_mean", "pitch_mean", "yaw_var", "pitch_var", "yaw_std", "pitch_std", "rig")
 
 
-def _add_distribution_options(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("head-pose distribution (default: the paper's, yaw 0, pitch 30, variances 10 deg^2)")
+def _add_distribution_options(
+    p: argparse.ArgumentParser, default: str = "the paper's, yaw 0, pitch 30, variances 10 deg^2"
+) -> None:
+    g = p.add_argument_group(f"head-pose distribution (default: {default})")
     g.add_argument(
         "--yaw-mean",
         type=finite_float,
@@ -224,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``gazeaug`` command."""
     from . import __version__
     from .datasets import DATASETS
+    from .experiment import BUILTIN_TEST_RIG
     from .models import MODELS
     from .render import RENDERERS
     from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
@@ -567,7 +570,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_eyes_option(
         xp,
         "with --train/--test each sample keeps its source's gaze in the head, the paper's method; the built-in "
-        f"setup redirects the eyes, to --rig {BUILTIN_EXPERIMENT_RIG} unless another is given",
+        f"setup redirects the eyes, to --rig {BUILTIN_TEST_RIG} unless another is given",
     )
     xp.add_argument(
         "--keep-eyes",
@@ -607,7 +610,11 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"processes of the dataset runs (augment, normalize-dataset) (default 1, at most {MAX_WORKERS})",
     )
     xp.add_argument("--quiet", action="store_true", help="no progress bars")
-    _add_distribution_options(xp)
+    _add_distribution_options(
+        xp,
+        "the paper's, yaw 0, pitch 30, variances 10 deg^2; the built-in setup: the --rig "
+        f"{BUILTIN_TEST_RIG} its test set is simulated in, unless --keep-eyes",
+    )
 
     rl = sub.add_parser(
         "realism",
@@ -1226,11 +1233,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-#: The rig the built-in experiment's augmentation targets unless told otherwise: the one its test set is
-#: simulated in (:func:`gazeaug.experiment.builtin_setup`).
-BUILTIN_EXPERIMENT_RIG = "wheelchair"
-
-
 def _builtin_redirects(args: argparse.Namespace) -> None:
     """The built-in experiment's default recipe: ``--redirect-eyes``, ``--rig wheelchair`` unless another is given.
 
@@ -1239,16 +1241,18 @@ def _builtin_redirects(args: argparse.Namespace) -> None:
     difference is a difference of global offsets (docs/model.md, "The built-in setup").
     """
     from .errors import GazeAugError
+    from .experiment import BUILTIN_TEST_RIG
 
     given = [f"--{n.replace('_', '-')}" for n in _DISTRIBUTION_OPTIONS if n != "rig" and getattr(args, n) is not None]
-    if given and args.rig is None:
+    if given:
         raise GazeAugError(
             f"the built-in experiment redirects the eyes to a rig's targets, and the rig sets the head poses: "
-            f"give --keep-eyes to augment with {', '.join(given)} (the paper's method), or --rig"
+            f"give --keep-eyes to augment with {', '.join(given)} (the paper's method), or leave them out "
+            f"(--rig chooses another rig)"
         )
     args.redirect_eyes = True
     if args.rig is None:
-        args.rig = BUILTIN_EXPERIMENT_RIG
+        args.rig = BUILTIN_TEST_RIG
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:

@@ -64,6 +64,7 @@ __all__ = [
     "TooFewStepsWarning",
     "MIN_STEPS_BATCHNORM",
     "BUILTIN_TRAIN",
+    "BUILTIN_TEST_RIG",
     "METRICS",
     "run_experiment",
     "simulated_setup",
@@ -91,6 +92,10 @@ MIN_STEPS_BATCHNORM = 200
 #: library's default is 500k: six runs of that would not fit the built-in run's half hour on two
 #: cores), the original model trained as many optimizer steps.
 BUILTIN_TRAIN = TrainSettings(auto_samples=100_000)
+
+#: The rig the built-in setup's test set is simulated in (its training set: ``screen``), and the rig
+#: its augmentation turns the eyes to unless told otherwise (``gazeaug experiment``'s default recipe).
+BUILTIN_TEST_RIG = "wheelchair"
 
 #: The metrics of :func:`gazeaug.metrics.summarize` the report tabulates: key, title, unit, digits.
 METRICS: tuple[tuple[str, str, str, int], ...] = (
@@ -181,7 +186,7 @@ def _simulate_sets(
     simulate(
         faces[:-1], BUILTIN_RIGS["screen"], setup.train, per_face=n_train, identities_per_face=n_train, seed=seed, **kw
     )
-    simulate(faces[-1:], BUILTIN_RIGS["wheelchair"], setup.test, per_face=n_test, seed=seed + 1, **kw)
+    simulate(faces[-1:], BUILTIN_RIGS[BUILTIN_TEST_RIG], setup.test, per_face=n_test, seed=seed + 1, **kw)
     if same_rig:  # the same seed: the same simulated person (the same kappa), in the training rig
         simulate(faces[-1:], BUILTIN_RIGS["screen"], setup.test_same_rig, per_face=n_test, seed=seed + 1, **kw)
     return setup

@@ -228,6 +228,7 @@ def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
     [
         (["--keep-eyes", "--redirect-eyes"], "--keep-eyes"),
         (["--yaw-mean", "5", "--pitch-std", "3"], "--keep-eyes to augment with --yaw-mean, --pitch-std"),
+        (["--rig", "screen", "--yaw-mean", "5"], "--keep-eyes to augment with --yaw-mean"),
     ],
 )
 def test_cli_builtin_experiment_refuses_a_mixed_recipe(tmp_path, capsys, extra, named):
@@ -258,6 +259,8 @@ def test_cli_builtin_experiment_keep_eyes_is_the_papers_method(tmp_path, monkeyp
     s = seen["settings"]
     assert s.eyes == "keep" and s.rig is None
     assert s.distribution == HeadPoseDistribution.from_variance(0.0, 30.0, 10.0, 10.0)  # the paper's
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--keep-eyes", "--yaw-mean", "5", "--quiet"]) == 130
+    assert seen["settings"].distribution == HeadPoseDistribution.from_variance(5.0, 30.0, 10.0, 10.0)
     assert main(["experiment", "-o", str(tmp_path / "xp"), "--rig", "screen", "--quiet"]) == 130
     assert seen["settings"].eyes == "redirect" and seen["settings"].rig.name == "screen"
 
