@@ -165,6 +165,11 @@ def _add_gaze_options(p: argparse.ArgumentParser) -> None:
 _DISTRIBUTION_OPTIONS = ("yaw_mean", "pitch_mean", "yaw_var", "pitch_var", "yaw_std", "pitch_std", "rig")
 
 
+def _given_distribution_options(args: argparse.Namespace) -> list[str]:
+    """The head-pose distribution's options given on the command line, ``--rig`` aside, as flags."""
+    return [f"--{n.replace('_', '-')}" for n in _DISTRIBUTION_OPTIONS if n != "rig" and getattr(args, n) is not None]
+
+
 def _add_distribution_options(
     p: argparse.ArgumentParser, default: str = "the paper's, yaw 0, pitch 30, variances 10 deg^2"
 ) -> None:
@@ -576,8 +581,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--keep-eyes",
         action="store_true",
         help="the paper's method on the built-in setup: each augmented sample keeps its source's gaze in the head, "
-        "head poses from the distribution options (default there: --rig wheelchair --redirect-eyes, the rig its "
-        "test set is simulated in; with --train/--test keeping the eyes is the default)",
+        f"head poses from the distribution options (default there: --rig {BUILTIN_TEST_RIG} --redirect-eyes, the "
+        "rig its test set is simulated in; with --train/--test keeping the eyes is the default)",
     )
     xp.add_argument(
         "--epochs",
@@ -684,11 +689,7 @@ def _distribution(args: argparse.Namespace) -> Any:
     from .errors import GazeAugError
     from .sampling import HeadPoseDistribution, load_rig
 
-    given = [
-        f"--{name.replace('_', '-')}"
-        for name in ("yaw_mean", "pitch_mean", "yaw_var", "pitch_var", "yaw_std", "pitch_std")
-        if getattr(args, name) is not None
-    ]
+    given = _given_distribution_options(args)
     if args.rig is not None:
         if given:
             raise GazeAugError(f"--rig sets the head-pose distribution; give it or {', '.join(given)}, not both")
@@ -1243,7 +1244,7 @@ def _builtin_redirects(args: argparse.Namespace) -> None:
     from .errors import GazeAugError
     from .experiment import BUILTIN_TEST_RIG
 
-    given = [f"--{n.replace('_', '-')}" for n in _DISTRIBUTION_OPTIONS if n != "rig" and getattr(args, n) is not None]
+    given = _given_distribution_options(args)
     if given:
         raise GazeAugError(
             f"the built-in experiment redirects the eyes to a rig's targets, and the rig sets the head poses: "

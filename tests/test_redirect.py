@@ -232,8 +232,8 @@ def test_cli_experiment_redirect_eyes_needs_a_rig(tmp_path, capsys):
     ],
 )
 def test_cli_builtin_experiment_refuses_a_mixed_recipe(tmp_path, capsys, extra, named):
-    # the built-in setup redirects the eyes to the rig's targets: a distribution without a rig asks for
-    # the paper's method by name instead of being silently ignored
+    # the built-in setup redirects the eyes to the rig's targets: distribution options (with a rig or
+    # without) ask for the paper's method by name instead of being silently ignored
     assert main(["experiment", "-o", str(tmp_path / "xp"), *extra, "--per-face", "2", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and named in err[0], err
