@@ -484,7 +484,6 @@ def run_experiment(
 
     s = settings or ExperimentSettings()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     train_reader = open_dataset(train_dataset, train_format)
     if s.eyes == "redirect":
         check_redirectable(train_reader)  # before minutes of normalizing the original set
@@ -492,6 +491,7 @@ def run_experiment(
     if test_same_rig is not None:
         tests["test_same_rig"] = (test_same_rig, open_dataset(test_same_rig, test_same_rig_format))
     minimum = min_steps_for(create_model(s.train.model, **s.train.model_options))
+    out.mkdir(parents=True, exist_ok=True)  # once the datasets and the model are known good: a refusal writes nothing
 
     def dataset(reader: Any, h5: Path, job: JobSettings, what: str) -> dict[str, Any]:
         summary = run_dataset(reader, h5, job, workers=s.workers, overwrite=True, progress=progress)

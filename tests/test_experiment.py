@@ -389,3 +389,14 @@ def test_cli_refuses_a_same_rig_test_without_datasets(tmp_path, capsys):
     assert main(["experiment", "--test-same-rig", str(tmp_path), "-o", str(tmp_path / "xp"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--test-same-rig goes with --train and --test" in err[0]
+
+
+def test_cli_experiment_with_a_missing_dataset_writes_nothing(tmp_path, capsys):
+    from gazeaug.cli import main
+
+    (tmp_path / "test").mkdir()
+    args = ["experiment", "--train", str(tmp_path / "nope"), "--test", str(tmp_path / "test")]
+    assert main([*args, "-o", str(tmp_path / "xp"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope" in err[0], err
+    assert not (tmp_path / "xp").exists()  # not even an empty report folder
