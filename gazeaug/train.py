@@ -110,8 +110,8 @@ class TrainSettings:
             about ``rows / 128`` rounded to a power of two, from 32 to 256).
         auto_samples: how many samples a run with ``epochs`` None shows the model (default 500000,
             250000 before 2026-11-25: with today's training-time augmentation the model underfits
-            at 250k; on issue 13's benchmark 500k gave 8.44 and 8.88 deg against 9.52 and 9.76 in
-            seeds 0 and 1; docs/model.md).
+            at 250k; on issue 13's benchmark 500k gave 8.66 +- 0.22 deg over 3 seeds against
+            9.38 +- 0.47; docs/model.md).
         lr: AdamW learning rate (default 3e-3; 1e-3 before 2026-11-25), decayed by cosine to 1% at
             the end; in (0, 10].
         weight_decay: Adam weight decay (default 1e-4); in [0, 10).
