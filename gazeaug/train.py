@@ -399,6 +399,46 @@ def train_inputs(
     return x[:n], x[n:], head, gaze, face
 
 
+def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device: Any) -> None:
+    """Run ``model`` once on zeros shaped like ``data``'s patches, or say in one line why it cannot.
+
+    A model's options can ask more of a patch than it has (``face_pool`` larger than the face
+    patch, ``blocks`` striding a small eye patch to nothing): PyTorch's error would come from deep
+    in the first training step. Two samples in eval mode, without gradients; nothing is kept.
+
+    Raises:
+        GazeAugError: the model cannot read patches of this size.
+    """
+    torch = import_torch()
+    w, h = data.patch_size_wh
+    eye = torch.zeros((2, 3, h, w), dtype=torch.float32, device=device)
+    face = None
+    if uses_face(model) and data.face_patch_size_wh is not None:
+        fw, fh = data.face_patch_size_wh
+        face = torch.zeros((2, 3, fh, fw), dtype=torch.float32, device=device)
+    head = torch.zeros((2, 2), dtype=torch.float32, device=device)
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            out = model(eye, eye, head, face) if face is not None else model(eye, eye, head)
+    except RuntimeError as exc:
+        sizes = f"eye patches {w} x {h} px" + ("" if face is None else f", face patches {fw} x {fh} px")
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
+        raise GazeAugError(
+            f"model {settings.model!r} with options {settings.model_options or {}} cannot read this set's "
+            f"{sizes} ({first})"
+        ) from exc
+    finally:
+        model.train(was_training)
+    shape = tuple(getattr(out, "shape", ()))
+    if shape != (2, 2):
+        raise GazeAugError(
+            f"model {settings.model!r}: expected (pitch, yaw) per sample, an output of shape (2, 2) for 2 samples, "
+            f"got {shape or type(out).__name__}"
+        )
+
+
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
     errs = []
     keys = H5TrainingSet.batch_keys(uses_face(model))
@@ -772,6 +812,7 @@ def _train(
                     f"differ from the training set's ({normalization.face_patch_size_wh} px at "
                     f"{normalization.face_distance_mm:g} mm with {normalization.face_focal_px:g} px)"
                 )
+    _check_fits(model, s, data, device)
     weights = axis_weights(data.gaze) if s.balance_axes else (1.0, 1.0)
     loss_weights = torch.tensor(weights, dtype=torch.float32, device=device)
     opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)

@@ -546,6 +546,21 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
 # --------------------------------------------------------------------------- the face patch as an input
 
 
+def test_a_model_that_cannot_read_the_sets_patches_is_refused_in_one_line_before_training(tmp_path):
+    """face_pool 8 on a 6 x 6 face patch pools it to nothing; PyTorch's error would come mid-step."""
+    data = _synthetic_h5(tmp_path / "f.h5", n=16, face_size=(6, 6))
+    opts = {"face": True, "face_pool": 8}
+    refused = r"cannot read this set's eye patches 60 x 36 px, face patches 6 x 6 px"
+    with pytest.raises(GazeAugError, match=refused) as e:
+        train(data, tmp_path / "f.pt", TrainSettings(epochs=1, batch_size=8, model_options=opts), progress=False)
+    assert "\n" not in str(e.value) and "face_pool" in str(e.value)
+    assert not (tmp_path / "f.pt").exists() and not (tmp_path / "f.ckpt.pt").exists()
+    # the same pool on a face patch it fits trains
+    fits = _synthetic_h5(tmp_path / "g.h5", n=16, face_size=(16, 16))
+    train(fits, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=8, model_options=opts), progress=False)
+    assert (tmp_path / "g.pt").exists()
+
+
 def test_a_face_model_reads_the_face_patch(tmp_path):
     from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
     from gazeaug.models import uses_face
