@@ -385,7 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
 
     ev = sub.add_parser("evaluate", help="angular error of a model on a raw dataset or a normalized .h5")
-    ev.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
+    ev.add_argument("model", type=Path, help="a gaze model: .pt (gazeaug train) or .onnx (gazeaug export)")
     ev.add_argument("dataset", type=Path, help="a dataset folder (any reader) or a normalized .h5")
     ev.add_argument("-o", "--output", type=Path, required=True, help="report folder (errors.json/.csv/_hist.png)")
     ev.add_argument("--format", choices=formats, help=format_help)
@@ -394,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_engine_options(ev)
 
     pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
-    pr.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
+    pr.add_argument("model", type=Path, help="a gaze model: .pt (gazeaug train) or .onnx (gazeaug export)")
     pr.add_argument("image", type=Path, help="face image (the largest face is used)")
     pr.add_argument(
         "--camera",
@@ -995,11 +995,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
+    from .estimator import load_estimator
     from .evaluate import evaluate_dataset, evaluate_h5, write_report
-    from .train import load_model
 
     engine = _engine(args, local_workers=False)
-    model, meta = load_model(args.model)
+    model = load_estimator(args.model)
     if args.dataset.suffix in (".h5", ".hdf5"):
         if engine.kind != "local":
             raise GazeAugError("--engine ray: for raw datasets; a normalized .h5 is evaluated here")
@@ -1008,7 +1008,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         from .datasets import open_dataset
 
         reader = open_dataset(args.dataset, args.format)
-        result = evaluate_dataset(model, meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
+        result = evaluate_dataset(model, model.meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
     paths = write_report(result, args.output)
     short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped")}
     short["per_subject"] = {k: round(v["mean_deg"], 3) for k, v in result["per_subject"].items()}
@@ -1022,14 +1022,14 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from facemesh.io import save_image_rgb
     from facemesh.pose import project_points
 
-    from .evaluate import predict_image, settings_from_meta
+    from .estimator import load_estimator
+    from .evaluate import predict_image
     from .pipeline import default_landmark_model, fit_face, load_input
-    from .train import load_model
 
-    model, meta = load_model(args.model)
+    model = load_estimator(args.model)
     image, camera, source = load_input(args.image, args.camera)
     fit = fit_face(image, camera, default_landmark_model(), source=source)
-    g, sample = predict_image(model, image, fit, settings_from_meta(meta))
+    g, sample = predict_image(model, image, fit, model.normalization)
     assert sample.face is not None
     origin = sample.face.camera.reference_mm
     out: dict[str, Any] = {

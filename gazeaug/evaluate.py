@@ -29,7 +29,7 @@ import io
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +43,9 @@ from .io_h5 import H5TrainingSet
 from .models import uses_face
 from .normalize import NormalizationSettings, NormalizedSample, gaze_direction, normalize_image
 from .train import angular_errors_deg, predict_arrays
+
+if TYPE_CHECKING:
+    from .estimator import GazeEstimator
 
 __all__ = ["evaluate_h5", "evaluate_dataset", "predict_image", "write_report", "settings_from_meta"]
 
@@ -58,6 +61,39 @@ def settings_from_meta(meta: Mapping[str, Any]) -> NormalizationSettings:
         n["patch_size_wh"] = tuple(n["patch_size_wh"])
     settings = NormalizationSettings(**n)
     return settings if meta.get("uses_face") else settings.without_face()
+
+
+def _is_estimator(model: Any) -> bool:
+    from .estimator import GazeEstimator
+
+    return isinstance(model, GazeEstimator)
+
+
+def _reads_face(model: Any) -> bool:
+    """Whether ``model`` (a PyTorch model or a :class:`gazeaug.estimator.GazeEstimator`) reads a face patch."""
+    return bool(model.uses_face) if _is_estimator(model) else uses_face(model)
+
+
+def _predict(
+    model: Any,
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    head_pose: NDArray[np.floating[Any]],
+    face: NDArray[np.uint8] | None,
+) -> NDArray[np.float64]:
+    """(N, 2) float64 radians (pitch, yaw), face-centre normalized frame, from a PyTorch model or an estimator.
+
+    The inputs as :func:`gazeaug.train.predict_arrays` takes them: (N, H, W, 3) uint8 RGB patches,
+    (N, 2) head pose in radians; ``face`` (N, Hf, Wf, 3) uint8 or None.
+    """
+    if _is_estimator(model):
+        return model.predict(left, right, np.asarray(head_pose), face)  # type: ignore[no-any-return]
+    return predict_arrays(model, left, right, head_pose, face=face)
+
+
+def model_settings(model: Any, meta: Mapping[str, Any]) -> NormalizationSettings:
+    """The normalization ``model``'s inputs need: an estimator's own, else :func:`settings_from_meta`."""
+    return model.normalization if _is_estimator(model) else settings_from_meta(meta)  # type: ignore[no-any-return]
 
 
 def _metrics(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -100,13 +136,17 @@ def _summary(errors: NDArray[np.float64], subjects: NDArray[Any]) -> dict[str, A
     }
 
 
-def evaluate_h5(model: Any, path: str | Path) -> dict[str, Any]:
-    """Errors on a normalized training-set file (angles between predicted and true gaze vectors)."""
+def evaluate_h5(model: Any | GazeEstimator, path: str | Path) -> dict[str, Any]:
+    """Errors on a normalized training-set file (angles between predicted and true gaze vectors).
+
+    ``model``: a PyTorch model (:func:`gazeaug.train.load_model`) or a
+    :class:`gazeaug.estimator.GazeEstimator` (a ``.pt`` or an ``.onnx`` export).
+    """
     data = H5TrainingSet(path)
     errs, subj, preds, trues = [], [], [], []
-    keys = H5TrainingSet.batch_keys(uses_face(model))
+    keys = H5TrainingSet.batch_keys(_reads_face(model))
     for batch in data.batches(512, keys=keys):
-        pred = predict_arrays(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], face=batch.get("face"))
+        pred = _predict(model, batch["left_eye"], batch["right_eye"], batch["head_pose"], batch.get("face"))
         errs.append(angular_errors_deg(pred, batch["gaze"]))
         subj.append(batch["subject"])
         preds.append(pred)
@@ -139,9 +179,7 @@ def _predict_normalized(
     sample = normalize_image(image, fit.camera, fit.pose, fit.model.vertices_mm, fit.keypoints, settings=settings)
     assert sample.face is not None
     face = None if sample.face.image is None else sample.face.image[None]
-    pred = predict_arrays(
-        model, sample.left.image[None], sample.right.image[None], sample.face.head_pose[None], face=face
-    )[0]
+    pred = _predict(model, sample.left.image[None], sample.right.image[None], sample.face.head_pose[None], face)[0]
     return pred, sample
 
 
@@ -149,9 +187,17 @@ _EVAL_STATE: dict[str, Any] = {}
 
 
 def _eval_setup(model: Any, settings: NormalizationSettings, threads: int = 0) -> None:
-    """A worker's state: the model, the normalization and one landmark detector (``threads``: torch's; 0 keeps it)."""
+    """A worker's state: the model, the normalization and one landmark detector (``threads``: torch's; 0 keeps it).
+
+    ``model``: a PyTorch model, an estimator, or the path of an ``.onnx`` file (an ONNX Runtime
+    session does not pickle: each Ray actor loads its own).
+    """
     from .pipeline import default_landmark_model
 
+    if isinstance(model, (str, Path)):
+        from .estimator import load_estimator
+
+        model = load_estimator(model)
     if threads:
         import torch
 
@@ -200,7 +246,7 @@ def _evaluate_block(samples: list[GazeSample]) -> list[tuple[dict[str, Any] | No
 
 
 def evaluate_dataset(
-    model: Any,
+    model: Any | GazeEstimator,
     meta: Mapping[str, Any],
     reader: DatasetReader,
     *,
@@ -210,15 +256,18 @@ def evaluate_dataset(
 ) -> dict[str, Any]:
     """Errors on a raw dataset through test-time normalization and denormalization (see the module docstring).
 
-    ``engine``: where the samples are processed (default this machine; on Ray, blocks of
-    ``engine.block_size`` samples, each actor with its own copy of the model).
+    ``model``: a PyTorch model (with ``meta``, :func:`gazeaug.train.load_model`'s) or a
+    :class:`gazeaug.estimator.GazeEstimator` (a ``.pt`` or an ``.onnx`` export; ``meta`` is then
+    its ``meta`` and the normalization its own). ``engine``: where the samples are processed
+    (default this machine; on Ray, blocks of ``engine.block_size`` samples, each actor with its
+    own copy of the model).
     """
     if limit is not None and not (isinstance(limit, int) and limit >= 1):
         raise GazeAugError(f"limit: expected an integer >= 1, got {limit!r}")
     total = len(reader) if limit is None else min(len(reader), limit)
     if total == 0:
         raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
-    settings = settings_from_meta(meta)
+    settings = model_settings(model, meta)
     rows, skipped = [], []
     bar = None
     if progress:
@@ -248,7 +297,7 @@ def evaluate_dataset(
                     blocks,
                     _evaluate_block,
                     _eval_setup,
-                    (model, settings, 1),
+                    (model.path if _is_estimator(model) and model.kind == "onnx" else model, settings, 1),
                     on_result=take,
                     interrupted=interrupted,
                 )

@@ -119,6 +119,45 @@ def test_track_onnx_equals_pytorch(model, tmp_path):
     np.testing.assert_allclose(a.predict(left, right, hp), b.predict(left, right, hp), atol=1e-4)
 
 
+def test_evaluate_and_predict_take_the_onnx_export_and_agree_with_the_pt(model, faces_dir, tmp_path, capsys):
+    """`gazeaug evaluate` and `gazeaug predict` load an .onnx as track does: the same rows, the same gaze."""
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    import shutil
+
+    assert main(["export", str(model), "-o", str(tmp_path / "m.onnx")]) == 0
+    capsys.readouterr()
+    h5 = synthetic_h5(tmp_path / "t.h5", n=40)
+    photo = face_photo(faces_dir, "astronaut.png", any_face=True)
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    with open(ds / "labels.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["image", "subject", "fx", "fy", "cx", "cy", "target_x", "target_y", "target_z"])
+        for i in range(2):
+            shutil.copy(photo, ds / f"img{i}{photo.suffix}")
+            w.writerow([f"img{i}{photo.suffix}", f"s{i}", 600, 600, 255.5, 255.5, 0, 0, 0])
+    got = {}
+    for kind in ("pt", "onnx"):
+        m = str(model) if kind == "pt" else str(tmp_path / "m.onnx")
+        for name, data in (("h5", h5), ("folder", ds)):
+            rep = tmp_path / f"{name}_{kind}"
+            assert main(["evaluate", m, str(data), "-o", str(rep), "--quiet"]) == 0
+            got[name, kind] = json.loads((rep / "errors.json").read_text())
+        assert main(["predict", m, str(photo)]) == 0
+        got["predict", kind] = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for name, n in (("h5", 40), ("folder", 2)):
+        a, b = got[name, "pt"], got[name, "onnx"]
+        assert a["count"] == b["count"] == n and a["skipped"] == b["skipped"] == 0
+        pa = np.array([[r["pred_pitch_rad"], r["pred_yaw_rad"]] for r in a["rows"]])
+        pb = np.array([[r["pred_pitch_rad"], r["pred_yaw_rad"]] for r in b["rows"]])
+        np.testing.assert_allclose(pb, pa, atol=1e-4)  # float32 graphs of one model: ONNX Runtime vs PyTorch
+        assert abs(a["mean_deg"] - b["mean_deg"]) < 0.01
+    np.testing.assert_allclose(
+        got["predict", "onnx"]["gaze_vector_camera"], got["predict", "pt"]["gaze_vector_camera"], atol=1e-4
+    )
+
+
 def test_track_folder_with_a_corrupt_frame_and_closed_eyes(model, faces_dir, tmp_path, capsys):
     """A folder in name order: an undecodable file is a row marked unreadable and the run goes on;
     a face with closed eyes is flagged, not given a gaze."""
