@@ -329,6 +329,17 @@ def test_simulate_and_evaluate_on_ray_match_local(ray_local, tmp_path):
     a = evaluate_dataset(model, meta, open_dataset(tmp_path / "a"), progress=False)
     b = evaluate_dataset(model, meta, open_dataset(tmp_path / "a"), progress=False, engine=Engine("ray", block_size=3))
     assert a["rows"] == b["rows"] and a["mean_deg"] == b["mean_deg"]
+    # an ONNX export, whose session does not pickle: each actor loads the file
+    pytest.importorskip("onnxruntime")
+    from gazeaug.estimator import load_estimator
+    from gazeaug.export import export_onnx
+
+    export_onnx(model, meta, tmp_path / "m.onnx")
+    est = load_estimator(tmp_path / "m.onnx")
+    ray_engine = Engine("ray", block_size=3)
+    c = evaluate_dataset(est, est.meta, open_dataset(tmp_path / "a"), progress=False, engine=ray_engine)
+    assert [r["index"] for r in c["rows"]] == [r["index"] for r in a["rows"]]
+    np.testing.assert_allclose([r["error_deg"] for r in c["rows"]], [r["error_deg"] for r in a["rows"]], atol=0.01)
 
 
 # --- a running head joined by address, and a cluster that loses a node -----------------------------------------------
