@@ -143,6 +143,20 @@ def evaluate_h5(model: Any | GazeEstimator, path: str | Path) -> dict[str, Any]:
     :class:`gazeaug.estimator.GazeEstimator` (a ``.pt`` or an ``.onnx`` export).
     """
     data = H5TrainingSet(path)
+    if _is_estimator(model):  # a PyTorch model alone does not record its patch size
+        face = _reads_face(model)
+        pairs: list[tuple[str, tuple[int, int] | None, tuple[int, int] | None]] = [
+            ("eye", data.patch_size_wh, model.normalization.patch_size_wh)
+        ]
+        if face:
+            pairs.append(("face", data.face_patch_size_wh, model.normalization.face_patch_size_wh))
+        for what, got, want in pairs:
+            if got != want:
+                shown = ["none" if v is None else f"{v[0]} x {v[1]} px" for v in (got, want)]
+                raise GazeAugError(
+                    f"{path}: its {what} patches are {shown[0]}, the model {model.path} reads {shown[1]} "
+                    "(normalize the set with the model's settings)"
+                )
     errs, subj, preds, trues = [], [], [], []
     keys = H5TrainingSet.batch_keys(_reads_face(model))
     for batch in data.batches(512, keys=keys):

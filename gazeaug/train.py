@@ -407,7 +407,8 @@ def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device
     in the first training step. Two samples in eval mode, without gradients; nothing is kept.
 
     Raises:
-        GazeAugError: the model cannot read patches of this size.
+        GazeAugError: the model cannot read patches of this size, or cannot be called as
+            ``model(left, right, head_pose[, face])``.
     """
     torch = import_torch()
     w, h = data.patch_size_wh
@@ -422,7 +423,9 @@ def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device
     try:
         with torch.no_grad():
             out = model(eye, eye, head, face) if face is not None else model(eye, eye, head)
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError) as exc:
+        if isinstance(exc, torch.cuda.OutOfMemoryError) or "CUDA" in str(exc):
+            raise  # the device's trouble, not the model's fit to the patches
         sizes = f"eye patches {w} x {h} px" + ("" if face is None else f", face patches {fw} x {fh} px")
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
         raise GazeAugError(

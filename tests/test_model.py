@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 
 import h5py
@@ -541,6 +542,36 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
     torch.save(obj, tmp_path / "bad.pt")
     with pytest.raises(GazeAugError, match="'prediction': expected"):
         load_model(tmp_path / "bad.pt")
+
+
+def test_a_model_of_another_signature_or_output_is_refused_before_training(tmp_path, monkeypatch):
+    from gazeaug.models import MODELS, register_model
+
+    monkeypatch.setattr(MODELS, "_entries", dict(MODELS._entries))  # the test's models leave with the test
+
+    class TwoInputs(torch.nn.Module):  # forward(left, right): no head pose
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.zeros(()))
+
+        def forward(self, left, right):
+            return self.w * left.mean(dim=(1, 2, 3))[:, None].repeat(1, 2)
+
+    class ThreeOutputs(TwoInputs):
+        def forward(self, left, right, head_pose):
+            return self.w * torch.cat([head_pose, head_pose[:, :1]], dim=1)
+
+    register_model("test_two_inputs")(TwoInputs)
+    register_model("test_three_outputs")(ThreeOutputs)
+    data = _synthetic_h5(tmp_path / "s.h5", n=16)
+    refusals = (
+        ("test_two_inputs", "cannot read this set's eye patches 60 x 36 px"),
+        ("test_three_outputs", "got (2, 3)"),
+    )
+    for name, phrase in refusals:
+        with pytest.raises(GazeAugError, match=re.escape(phrase)):
+            train(data, tmp_path / f"{name}.pt", TrainSettings(model=name, epochs=1, batch_size=8), progress=False)
+        assert not (tmp_path / f"{name}.pt").exists()
 
 
 # --------------------------------------------------------------------------- the face patch as an input

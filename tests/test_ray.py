@@ -340,6 +340,10 @@ def test_simulate_and_evaluate_on_ray_match_local(ray_local, tmp_path):
     c = evaluate_dataset(est, est.meta, open_dataset(tmp_path / "a"), progress=False, engine=ray_engine)
     assert [r["index"] for r in c["rows"]] == [r["index"] for r in a["rows"]]
     np.testing.assert_allclose([r["error_deg"] for r in c["rows"]], [r["error_deg"] for r in a["rows"]], atol=0.01)
+    # the .pt as `gazeaug evaluate` loads it: an estimator, sent to the actors whole
+    pt = load_estimator(Path(__file__).parents[1] / "gazeaug" / "models" / "demo_wheelchair.pt")
+    d = evaluate_dataset(pt, pt.meta, open_dataset(tmp_path / "a"), progress=False, engine=ray_engine)
+    assert d["rows"] == a["rows"]
 
 
 # --- a running head joined by address, and a cluster that loses a node -----------------------------------------------

@@ -156,6 +156,21 @@ def test_evaluate_and_predict_take_the_onnx_export_and_agree_with_the_pt(model, 
     np.testing.assert_allclose(
         got["predict", "onnx"]["gaze_vector_camera"], got["predict", "pt"]["gaze_vector_camera"], atol=1e-4
     )
+    # a set normalized for another patch size is refused by both, naming the set and the model
+    import h5py
+
+    small = tmp_path / "small.h5"
+    shutil.copy(h5, small)
+    with h5py.File(small, "r+") as f:
+        for k in ("left_eye", "right_eye"):
+            cut = f[k][:, :30, :50]
+            del f[k]
+            f[k] = cut
+    for m in (model, tmp_path / "m.onnx"):
+        assert main(["evaluate", str(m), str(small), "-o", str(tmp_path / "no"), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "eye patches are 50 x 30 px" in err[0] and str(m) in err[0], err
+    assert not (tmp_path / "no").exists()
 
 
 def test_track_folder_with_a_corrupt_frame_and_closed_eyes(model, faces_dir, tmp_path, capsys):
