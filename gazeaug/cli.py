@@ -364,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step (default: fitted to the training set's size, rows / 128 as a power of two, 32 to 256)",
     )
-    t.add_argument("--lr", type=finite_float, default=3e-3, help=LR_HELP)
+    t.add_argument("--lr", type=finite_float, default=None, help=LR_HELP)
     t.add_argument(
         "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
     )
@@ -975,7 +975,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         model=args.model,
         epochs=args.epochs,
         batch_size=args.batch_size,
-        lr=args.lr,
+        lr=TrainSettings.lr if args.lr is None else args.lr,
         seed=args.seed,
         device=args.device,
         **_train_input_settings(args),
@@ -988,6 +988,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         val_subjects=args.val_subjects,
         resume=args.resume,
         progress=not args.quiet,
+        given=() if args.lr is None else ("lr",),
     )
     print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))
     return 0

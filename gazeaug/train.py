@@ -25,7 +25,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Generator, Iterator, Sequence
+from collections.abc import Collection, Generator, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -675,14 +675,19 @@ def _recorded_settings(then: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _with_older_defaults(s: TrainSettings, recorded: dict[str, Any]) -> TrainSettings:
+def _with_older_defaults(s: TrainSettings, recorded: dict[str, Any], given: Collection[str] = ()) -> TrainSettings:
     """``s`` resuming a run begun under an older default (:data:`_OLDER_DEFAULTS`, :data:`_OLDER_AUGMENT_DEFAULTS`).
 
     Where the run recorded the older default and ``s`` leaves the field at today's, the run goes on
-    with its own value (``gazeaug train --resume`` cannot tell a default from a value given).
+    with its own value (``gazeaug train --resume`` cannot tell a default from a value given), except
+    for the fields named in ``given``.
     """
     default = TrainSettings()
-    older = {k: v for k, v in _OLDER_DEFAULTS if recorded.get(k) == v and getattr(s, k) == getattr(default, k)}
+    older = {
+        k: v
+        for k, v in _OLDER_DEFAULTS
+        if k not in given and recorded.get(k) == v and getattr(s, k) == getattr(default, k)
+    }
     then_aug = recorded.get("augment")
     if isinstance(then_aug, dict):
         aug = {
@@ -729,6 +734,7 @@ def train(
     val_subjects: Sequence[str] | None = None,
     resume: bool = False,
     progress: bool = True,
+    given: Collection[str] = (),
 ) -> list[dict[str, Any]]:
     """Train a model and save it to ``output`` (``.pt``); returns the per-epoch log.
 
@@ -740,6 +746,10 @@ def train(
         val_subjects: instead, hold these subjects of the training set out for validation.
         resume: continue from ``output``'s checkpoint.
         progress: show a progress bar.
+        given: names of ``settings`` fields chosen on purpose (``gazeaug train --lr``). A resumed run
+            begun under an older default (:data:`_OLDER_DEFAULTS`) goes on with its own value where
+            ``settings`` holds today's default, since a default cannot be told from a value given;
+            a field named here is kept as given, so a difference from the run is refused.
 
     Raises:
         GazeAugError: bad files or settings.
@@ -758,7 +768,7 @@ def train(
         # plain str (numpy strings would land in the files as numpy scalars, which the safe loader refuses)
         val_subjects = [v.decode() if isinstance(v, bytes) else str(v) for v in val_subjects]
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
-        return _train(train_path, out, s, val_path, val_subjects, resume, progress)
+        return _train(train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given))
 
 
 def _train(
@@ -769,6 +779,7 @@ def _train(
     val_subjects: Sequence[str] | None,
     resume: bool,
     progress: bool,
+    given: frozenset[str] = frozenset(),
 ) -> list[dict[str, Any]]:
     torch = import_torch()
     ckpt_path = out.with_suffix(".ckpt.pt")
@@ -780,7 +791,7 @@ def _train(
         ck = _load_plain(ckpt_path, "gazeaug checkpoint")
         if isinstance(ck.get("settings"), dict):
             s = _resumed_sizes(s, ck["settings"])  # left to None: the run being resumed decided them
-            s = _with_older_defaults(s, _recorded_settings(ck["settings"]))
+            s = _with_older_defaults(s, _recorded_settings(ck["settings"]), given)
     s = s.fitted(len(data))  # epochs and batch size left to the data size: fixed now, recorded in the files
     n_epochs, batch_size = int(s.epochs or 0), int(s.batch_size or 0)
     # recorded in the model and used by predict and evaluate: checked now, not after the training

@@ -208,6 +208,13 @@ def test_a_run_begun_before_the_defaults_of_2026_11_25_resumes_as_it_began(tmp_p
     assert "balance_axes" not in torch.load(tmp_path / "m.ckpt.pt", weights_only=True)["settings"]
     with pytest.raises(GazeAugError, match=r"other settings \(lr: 0.001 then, 0.01 now\)"):
         train(h5, out, TrainSettings(epochs=2, batch_size=16, lr=1e-2), resume=True)
+    # today's default given on purpose (`gazeaug train --resume --lr 0.003`) is another lr, refused too
+    with pytest.raises(GazeAugError, match=r"other settings \(lr: 0.001 then, 0.003 now\)"):
+        train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, given=("lr",))
+    from gazeaug.cli import main
+
+    argv = ["train", str(h5), "-o", str(out), "--resume", "--epochs", "2", "--batch-size", "16", "--quiet"]
+    assert main([*argv, "--lr", "0.003"]) == 2
     log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
     assert [r["epoch"] for r in log] == [1, 2]
     made = torch.load(out, weights_only=True)
