@@ -131,12 +131,11 @@ def load_estimator(path: str | Path, device: str = "cpu") -> GazeEstimator:
     p = Path(path)
     if p.suffix.lower() == ".onnx":
         return _load_onnx(p)
+    from .evaluate import settings_from_meta
     from .train import load_model
 
     model, meta = load_model(p, device=device)
-    norm = NormalizationSettings.from_dict(meta["normalization"])
-    if not meta["uses_face"]:  # test time samples what the model reads
-        norm = norm.without_face()
+    norm = settings_from_meta(meta)  # without a face patch unless the model reads one: test time samples that
     return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model)
 
 

@@ -56,10 +56,7 @@ def settings_from_meta(meta: Mapping[str, Any]) -> NormalizationSettings:
     A model that reads no face patch (``meta["uses_face"]`` False or absent) gets settings that
     make none, even when its training data carried face patches: test time samples what it reads.
     """
-    n = dict(meta.get("normalization") or {})
-    if "patch_size_wh" in n:
-        n["patch_size_wh"] = tuple(n["patch_size_wh"])
-    settings = NormalizationSettings(**n)
+    settings = NormalizationSettings.from_dict(meta.get("normalization") or {})
     return settings if meta.get("uses_face") else settings.without_face()
 
 
@@ -91,7 +88,7 @@ def _predict(
     return predict_arrays(model, left, right, head_pose, face=face)
 
 
-def model_settings(model: Any, meta: Mapping[str, Any]) -> NormalizationSettings:
+def _model_settings(model: Any, meta: Mapping[str, Any]) -> NormalizationSettings:
     """The normalization ``model``'s inputs need: an estimator's own, else :func:`settings_from_meta`."""
     return model.normalization if _is_estimator(model) else settings_from_meta(meta)  # type: ignore[no-any-return]
 
@@ -281,7 +278,7 @@ def evaluate_dataset(
     total = len(reader) if limit is None else min(len(reader), limit)
     if total == 0:
         raise DatasetError(f"{getattr(reader, 'root', reader.name)}: the dataset has no samples")
-    settings = model_settings(model, meta)
+    settings = _model_settings(model, meta)
     rows, skipped = [], []
     bar = None
     if progress:
