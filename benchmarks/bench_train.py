@@ -7,13 +7,20 @@ the schema of ``gazeaug augment``; with ``--face-patch`` a face patch of that si
 per row too, and the model is ``mobilenet_gaze(face=True)``) and, on the CPU (``--threads`` torch threads)
 and on CUDA when there is one, for every batch size measures one pass over it:
 
-- ``read``: the rows from HDF5 through :func:`gazeaug.train.prefetch_batches`
+- ``read``: the rows from HDF5 through :func:`gazeaug.train_data.prefetch_batches`
   (background thread, uint8 tensors; pinned and copied to the GPU on CUDA);
 - ``read_augment``: the same plus :func:`gazeaug.train.train_inputs` (the
   training-time augmentation and the input scaling, on the device);
-- ``train``: :func:`gazeaug.train.train`, one epoch of the default model with
-  the default settings (augmentation on), the samples per second of its log;
-- ``train_no_augment``: the same with ``TrainAugment(enabled=False)``.
+- ``load_resident``: rows per second of reading the whole set onto the device
+  once (:class:`gazeaug.train_data.ResidentSet`);
+- ``read_resident``, ``read_augment_resident``: the passes above with the
+  batches gathered from the resident set (what training does when the set fits:
+  ``preload="auto"``);
+- ``train``, ``train_resident``: :func:`gazeaug.train.train`, the default model
+  with the default settings (augmentation on), streamed (``preload="no"``) and
+  resident (``preload="yes"``): the samples per second of the second epoch's log
+  (the first holds the warm-up);
+- ``train_no_augment_resident``: resident, ``TrainAugment(enabled=False)``.
 
 Prints one JSON line: ``{"rows", "threads", "cpu": {BATCH: {what: samples/s}},
 "cuda": {...} or null, "cuda_device", "torch"}``.
@@ -35,8 +42,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gazeaug.io_h5 import H5TrainingSet, H5Writer, Rows  # noqa: E402
-from gazeaug.train import TrainSettings, prefetch_batches, train, train_inputs  # noqa: E402
+from gazeaug.train import TrainSettings, train, train_inputs  # noqa: E402
 from gazeaug.train_augment import TrainAugment, augment_generator  # noqa: E402
+from gazeaug.train_data import ResidentSet, epoch_batches  # noqa: E402
 
 _BLOCK = 2048
 
@@ -90,8 +98,11 @@ def synthetic(path: Path, n: int, seed: int = 0, face_size: tuple[int, int] | No
     return path
 
 
-def _pass(h5: Path, batch_size: int, device: Any, augment: bool) -> float:
-    """Samples per second of one pass: reading (and augmenting) every row onto ``device``."""
+def _pass(h5: Path, batch_size: int, device: Any, augment: bool, resident: ResidentSet | None = None) -> float:
+    """Samples per second of one pass: reading (and augmenting) every row onto ``device``.
+
+    From ``resident`` when given (the batches gathered on the device), else streamed from ``h5``.
+    """
     import torch
 
     data = H5TrainingSet(h5)
@@ -101,7 +112,7 @@ def _pass(h5: Path, batch_size: int, device: Any, augment: bool) -> float:
     aug = TrainAugment()
     seen = 0
     t0 = time.perf_counter()
-    for _, tensors in prefetch_batches(data, batch_size, np.random.default_rng(0), pin=cuda, face=face):
+    for tensors in epoch_batches(data, resident, batch_size, np.random.default_rng(0), pin=cuda, face=face):
         if augment:
             train_inputs(tensors, device, aug, "rgb", gen)
         else:
@@ -119,15 +130,29 @@ def measure(h5: Path, tmp: Path, batch_size: int, device_name: str, face: bool =
 
     device = torch.device(device_name)
     out = {"read": _pass(h5, batch_size, device, False), "read_augment": _pass(h5, batch_size, device, True)}
-    for what, aug in (("train", TrainAugment()), ("train_no_augment", TrainAugment(enabled=False))):
+    data = H5TrainingSet(h5)
+    t0 = time.perf_counter()
+    resident = ResidentSet(data, device, face)
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    out["load_resident"] = round(len(data) / (time.perf_counter() - t0), 1)
+    out["read_resident"] = _pass(h5, batch_size, device, False, resident)
+    out["read_augment_resident"] = _pass(h5, batch_size, device, True, resident)
+    del resident
+    runs = (
+        ("train", TrainAugment(), "no"),
+        ("train_resident", TrainAugment(), "yes"),
+        ("train_no_augment_resident", TrainAugment(enabled=False), "yes"),
+    )
+    for what, aug, preload in runs:
         s = TrainSettings(
-            epochs=1,
+            epochs=2,
             batch_size=batch_size,
             device=device_name,
             augment=aug,
             model_options={"face": True} if face else {},
         )
-        log = train(h5, tmp / f"m_{device_name}_{batch_size}_{what}.pt", s, progress=False)
+        log = train(h5, tmp / f"m_{device_name}_{batch_size}_{what}.pt", s, progress=False, preload=preload)
         out[what] = log[-1]["samples_per_second"]
     return out
 

@@ -381,6 +381,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the gaze model's architecture, a registered name (default mobilenet_gaze)",
     )
     _add_train_input_options(t)
+    t.add_argument(
+        "--preload",
+        choices=("auto", "yes", "no"),
+        default="auto",
+        help="hold the training rows on the device, read once (yes), or stream them from the file each epoch (no); "
+        "auto: held when they fit in half the memory free there, on the host at most 16 GiB. The same model "
+        "either way (default auto)",
+    )
     t.add_argument("--resume", action="store_true", help="continue from the checkpoint beside the model (OUT.ckpt.pt)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -989,6 +997,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         resume=args.resume,
         progress=not args.quiet,
         given=() if args.lr is None else ("lr",),
+        preload=args.preload,
     )
     print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))
     return 0

@@ -593,6 +593,11 @@ class H5TrainingSet:
         """(K, 2) float32 radians (pitch, yaw), face-centre normalized frame: the gaze of the rows in use."""
         return self._labels[self.rows, 2:]
 
+    @property
+    def head_pose(self) -> NDArray[np.float32]:
+        """(K, 2) float32 radians (pitch, yaw), face-centre normalized frame: the head pose of the rows in use."""
+        return self._labels[self.rows, :2]
+
     def read(self, keys: Sequence[str] | None = None) -> dict[str, Any]:
         """Whole columns of the rows in use, and the file attributes.
 
@@ -640,11 +645,60 @@ class H5TrainingSet:
         wanted = tuple(keys) if keys is not None else self.KEYS
         if "face" in wanted and self.face_patch_size_wh is None:
             raise GazeAugError(f"{self.path}: no face patches (made without --face-patch)")
+        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
+        carried = 0
+        in_memory = {  # read once when the file was opened
+            "subject": self.subjects,
+            "head_pose": self._labels[:, :2],
+            "gaze": self._labels[:, 2:],
+        }
+        with h5py.File(self.path, "r") as f:
+            stored = {k: f[k] for k in wanted if k not in in_memory}
+            for runs, perm in self._windows(rng, "face" in wanted):
+                parts: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
+                for idx in runs:
+                    lo, hi = int(idx[0]), int(idx[-1]) + 1
+                    for k in wanted:
+                        parts[k].append(in_memory[k][idx] if k in in_memory else stored[k][lo:hi][idx - lo])
+                for k in wanted:
+                    carry[k].append(np.concatenate(parts[k])[perm])
+                carried += len(perm)
+                while carried >= batch_size:
+                    joined = {k: np.concatenate(v) for k, v in carry.items()}
+                    yield {k: v[:batch_size] for k, v in joined.items()}
+                    carry = {k: [v[batch_size:]] for k, v in joined.items()}
+                    carried -= batch_size
+        if carried:
+            yield {k: np.concatenate(v) for k, v in carry.items()}
+
+    def order(self, rng: np.random.Generator | None = None, *, face: bool = False) -> NDArray[np.int64]:
+        """(K,) int64: the file's row indices in use, in the order :meth:`batches` yields them.
+
+        ``batches(B, rng)``'s i-th batch is the rows ``order(rng)[i * B:(i + 1) * B]`` (read with a
+        fresh ``rng`` of the same seed: both draw the same numbers from it, in the same order).
+        ``face``: the order of batches that read face patches (their windows are smaller).
+        """
+        plan = self._windows(rng, face)
+        if not plan:
+            return np.zeros(0, dtype=np.int64)
+        return np.concatenate([np.concatenate(runs)[perm] for runs, perm in plan])
+
+    def _windows(
+        self, rng: np.random.Generator | None, face: bool
+    ) -> list[tuple[list[NDArray[np.int64]], NDArray[np.int64]]]:
+        """The reading plan of :meth:`batches`: windows, each ``(runs, perm)``.
+
+        ``runs``: file row indices, each run consecutive in the file (read at once); ``perm``: the
+        window's shuffle, applied to the runs' rows concatenated. Pieces (the rows in use of one
+        eye-patch chunk, :data:`_CHUNK` rows; a selection's gap never inside a read) in a random
+        order, gathered into windows of at least about :data:`_BLOCK` rows (fewer with face
+        patches: bounded memory). Every number is drawn from ``rng`` here, in a fixed order: the
+        pieces' order, then each window's shuffle. Without ``rng``, file order.
+        """
         size = _BLOCK
-        if "face" in wanted and self.face_patch_size_wh is not None:  # bounded memory: faces are large
+        if face and self.face_patch_size_wh is not None:  # bounded memory: faces are large
             fw, fh = self.face_patch_size_wh
             size = max(_CHUNK, min(_BLOCK, _FACE_BLOCK_BYTES // (fw * fh * 3)))
-        # pieces: the rows in use within one eye-patch chunk (a selection's gap never inside a read)
         pieces = np.split(self.rows, np.flatnonzero(np.diff(self.rows // _CHUNK)) + 1) if len(self.rows) else []
         order = rng.permutation(len(pieces)) if rng is not None else np.arange(len(pieces))
         windows: list[list[NDArray[np.int64]]] = [[]]
@@ -655,43 +709,20 @@ class H5TrainingSet:
                 filled = 0
             windows[-1].append(pieces[b])
             filled += len(pieces[b])
-        carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
-        carried = 0
-        in_memory = {  # read once when the file was opened
-            "subject": self.subjects,
-            "head_pose": self._labels[:, :2],
-            "gaze": self._labels[:, 2:],
-        }
-        with h5py.File(self.path, "r") as f:
-            stored = {k: f[k] for k in wanted if k not in in_memory}
-            for window in windows:
-                if not window:
-                    continue
-                # pieces that follow each other in the file (file order) are read at once
-                runs: list[NDArray[np.int64]] = []
-                for idx in window:
-                    if runs and idx[0] == runs[-1][-1] + 1:
-                        runs[-1] = np.concatenate([runs[-1], idx])
-                    else:
-                        runs.append(idx)
-                parts: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
-                for idx in runs:
-                    lo, hi = int(idx[0]), int(idx[-1]) + 1
-                    for k in wanted:
-                        parts[k].append(in_memory[k][idx] if k in in_memory else stored[k][lo:hi][idx - lo])
-                data = {k: np.concatenate(v) for k, v in parts.items()}
-                n = sum(len(idx) for idx in runs)
-                perm = rng.permutation(n) if rng is not None else np.arange(n)
-                for k in wanted:
-                    carry[k].append(data[k][perm])
-                carried += n
-                while carried >= batch_size:
-                    joined = {k: np.concatenate(v) for k, v in carry.items()}
-                    yield {k: v[:batch_size] for k, v in joined.items()}
-                    carry = {k: [v[batch_size:]] for k, v in joined.items()}
-                    carried -= batch_size
-        if carried:
-            yield {k: np.concatenate(v) for k, v in carry.items()}
+        plan = []
+        for window in windows:
+            if not window:
+                continue
+            # pieces that follow each other in the file (file order) are read at once
+            runs: list[NDArray[np.int64]] = []
+            for idx in window:
+                if runs and idx[0] == runs[-1][-1] + 1:
+                    runs[-1] = np.concatenate([runs[-1], idx])
+                else:
+                    runs.append(idx)
+            n = sum(len(idx) for idx in runs)
+            plan.append((runs, rng.permutation(n) if rng is not None else np.arange(n)))
+        return plan
 
 
 def _settings_attr(raw: Any, path: Path) -> dict[str, Any]:

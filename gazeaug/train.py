@@ -1,9 +1,10 @@
 """Training the gaze model on the HDF5 sets that ``augment`` and ``normalize-dataset`` write.
 
-Data are streamed, shuffled across the whole file (:meth:`H5TrainingSet.batches`),
-so memory stays bounded whatever the file's size. A background thread
-reads the next batches while the model steps (:func:`prefetch_batches`); the
-patches go to the device as uint8 and are augmented
+Batches are shuffled across the whole file (:meth:`H5TrainingSet.order`) and
+come from the rows held on the training device, read once, when they fit, or
+else are streamed from the file by a background thread in bounded memory: the
+same batches either way (:mod:`gazeaug.train_data`). The patches reach the
+device as uint8 and are augmented
 (:mod:`gazeaug.train_augment`, the one place of training-time augmentation)
 and converted to the model's input there (:func:`train_inputs`); CUDA steps run
 in bfloat16 autocast. The model predicts
@@ -25,7 +26,7 @@ import io
 import json
 import math
 import time
-from collections.abc import Collection, Generator, Iterator, Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -44,11 +45,11 @@ from .models.preprocess import (
     input_mode_of,
     prepare_inputs,
     preprocessing_record,
-    scale_eyes,
     set_input_mode,
 )
 from .normalize import NormalizationSettings
-from .train_augment import TrainAugment, augment_eyes, augment_generator, mirror_samples
+from .train_augment import TrainAugment, augment_generator
+from .train_data import PRELOAD_CHOICES, ResidentSet, epoch_batches, prefetch_batches, should_preload, train_inputs
 
 __all__ = [
     "TrainSettings",
@@ -92,8 +93,6 @@ AUTO_MIN_EPOCHS = 10
 #: whole log (24 rows at 250k samples: 10417 epochs, 8.9 min on 2 cores), to memorise a set too small
 #: to generalize.
 AUTO_MAX_EPOCHS = 2000
-#: Batches read ahead by the background thread.
-PREFETCH = 3
 
 
 @dataclass(frozen=True)
@@ -311,92 +310,6 @@ def predict_arrays(
             )
             out.append(model(*inputs).float().cpu().numpy())
     return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 2))
-
-
-def prefetch_batches(
-    data: H5TrainingSet,
-    batch_size: int,
-    rng: np.random.Generator | None,
-    *,
-    depth: int = PREFETCH,
-    pin: bool = False,
-    face: bool = False,
-) -> Generator[tuple[dict[str, NDArray[Any]], dict[str, Any]], None, None]:
-    """:meth:`H5TrainingSet.batches`, read ``depth`` batches ahead by a background thread.
-
-    The order is exactly that of ``data.batches(batch_size, rng)`` (one thread draws from ``rng``),
-    so training stays deterministic. Close the iterator (``contextlib.closing``) to stop the thread
-    early; an error of the reading thread is raised here. ``depth`` 0: no thread, the batches are
-    read when asked for (the same batches).
-
-    Yields:
-        ``(batch, tensors)``: ``batch`` as :meth:`H5TrainingSet.batches` yields it (numpy, B rows);
-        ``tensors`` the CPU torch tensors the training moves to its device: ``eyes`` uint8
-        (2B, H, W, 3), the left eyes then the right eyes, RGB; ``head_pose`` and ``gaze`` float32
-        (B, 2) radians (pitch, yaw); with ``face``, ``face`` uint8 (B, Hf, Wf, 3) RGB as well (the
-        batch then holds it too). In pinned memory with ``pin`` (for CUDA's asynchronous copies).
-    """
-    torch = import_torch()
-
-    def tensor(a: NDArray[Any]) -> Any:
-        t = torch.from_numpy(np.ascontiguousarray(a))
-        return t.pin_memory() if pin else t
-
-    def tensors(batch: dict[str, NDArray[Any]]) -> dict[str, Any]:
-        out = {
-            "eyes": tensor(np.concatenate([batch["left_eye"], batch["right_eye"]])),
-            "head_pose": tensor(batch["head_pose"].astype(np.float32, copy=False)),
-            "gaze": tensor(batch["gaze"].astype(np.float32, copy=False)),
-        }
-        if face:
-            out["face"] = tensor(batch["face"])
-        return out
-
-    keys = H5TrainingSet.batch_keys(face)
-    if depth <= 0:
-        with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
-            for batch in it:
-                yield batch, tensors(batch)
-        return
-    from .background import read_ahead
-
-    def produce() -> Iterator[tuple[dict[str, NDArray[Any]], dict[str, Any]]]:
-        with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
-            for batch in it:
-                yield batch, tensors(batch)
-
-    yield from read_ahead(produce, depth, "gazeaug-prefetch")
-
-
-def train_inputs(
-    tensors: dict[str, Any], device: Any, augment: TrainAugment, input_mode: str, generator: Any
-) -> tuple[Any, Any, Any, Any, Any]:
-    """A prefetched batch (:func:`prefetch_batches`) -> the model's inputs and target, on ``device``.
-
-    The eye patches travel as uint8 (asynchronously from pinned memory); a share of the samples
-    is mirrored (:func:`gazeaug.train_augment.mirror_samples`: patches swapped and flipped, the
-    yaws of the head pose and gaze negated, so the labels returned are the ones the model is
-    given), the patches augmented (:func:`gazeaug.train_augment.augment_eyes`, with ``generator``
-    on ``device``), then converted by the model's input mode
-    (:func:`gazeaug.models.preprocess.scale_eyes`) on the device.
-
-    Returns:
-        left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians;
-        face: float32 (B, 3, Hf, Wf) in [-1, 1] when the batch has face patches (augmented after
-        the eyes, with draws of its own), else None.
-    """
-    torch = import_torch()
-    eyes = tensors["eyes"].to(device, non_blocking=True)
-    head = tensors["head_pose"].to(device, non_blocking=True)
-    gaze = tensors["gaze"].to(device, non_blocking=True)
-    face = tensors["face"].to(device, non_blocking=True) if "face" in tensors else None
-    with torch.no_grad():
-        eyes, head, gaze, face = mirror_samples(eyes, head, gaze, augment, generator, face=face)
-        x = scale_eyes(augment_eyes(eyes, augment, generator), input_mode)
-        if face is not None:
-            face = scale_eyes(augment_eyes(face, augment, generator), input_mode)
-    n = x.shape[0] // 2
-    return x[:n], x[n:], head, gaze, face
 
 
 def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device: Any) -> None:
@@ -735,6 +648,7 @@ def train(
     resume: bool = False,
     progress: bool = True,
     given: Collection[str] = (),
+    preload: str = "auto",
 ) -> list[dict[str, Any]]:
     """Train a model and save it to ``output`` (``.pt``); returns the per-epoch log.
 
@@ -750,6 +664,11 @@ def train(
             begun under an older default (:data:`_OLDER_DEFAULTS`) goes on with its own value where
             ``settings`` holds today's default, since a default cannot be told from a value given;
             a field named here is kept as given, so a difference from the run is refused.
+        preload: where the batches come from (:mod:`gazeaug.train_data`): ``auto`` (default) holds
+            the training rows on the device, read once, when they fit in half the memory free
+            there (on the host, at most 16 GiB), else streams them from the file each epoch;
+            ``yes`` holds them whatever their size, ``no`` streams them. The batches, and so the
+            model, are the same either way: only the speed and the memory differ.
 
     Raises:
         GazeAugError: bad files or settings.
@@ -762,13 +681,15 @@ def train(
         raise GazeAugError(f"{out}: the model file must end in .pt")
     if val_path is not None and val_subjects:
         raise GazeAugError("give a validation set or validation subjects, not both")
+    if preload not in PRELOAD_CHOICES:
+        raise GazeAugError(f"preload: expected one of {', '.join(PRELOAD_CHOICES)}, got {preload!r}")
     if val_subjects is not None:
         if isinstance(val_subjects, (str, bytes)):
             raise GazeAugError(f"validation subjects: expected a list of names, got the string {val_subjects!r}")
         # plain str (numpy strings would land in the files as numpy scalars, which the safe loader refuses)
         val_subjects = [v.decode() if isinstance(v, bytes) else str(v) for v in val_subjects]
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
-        return _train(train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given))
+        return _train(train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given), preload)
 
 
 def _train(
@@ -780,6 +701,7 @@ def _train(
     resume: bool,
     progress: bool,
     given: frozenset[str] = frozenset(),
+    preload: str = "auto",
 ) -> list[dict[str, Any]]:
     torch = import_torch()
     ckpt_path = out.with_suffix(".ckpt.pt")
@@ -892,6 +814,8 @@ def _train(
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
     cuda = device.type == "cuda"
+    # the same batches either way (train_data): held on the device, read once, or streamed each epoch
+    resident = ResidentSet(data, device, face) if should_preload(preload, data, face, device) else None
     with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
         for epoch in range(start_epoch, n_epochs):
             rng = np.random.default_rng([s.seed, epoch])
@@ -899,11 +823,9 @@ def _train(
             model.train()
             t0 = time.perf_counter()
             losses, preds, gazes, sizes = [], [], [], []
-            with contextlib.closing(
-                prefetch_batches(data, batch_size, rng, depth=PREFETCH, pin=cuda, face=face)
-            ) as batches:
-                for step, (batch, tensors) in enumerate(batches):
-                    n = len(batch["gaze"])
+            with contextlib.closing(epoch_batches(data, resident, batch_size, rng, pin=cuda, face=face)) as batches:
+                for step, tensors in enumerate(batches):
+                    n = len(tensors["gaze"])
                     a, b, c, y, f = train_inputs(tensors, device, s.augment, s.input_mode, gen)
                     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
                         pred = model(a, b, c) if f is None else model(a, b, c, f)

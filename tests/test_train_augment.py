@@ -377,3 +377,106 @@ def test_a_mirrored_sample_mirrors_its_face_patch_with_its_eyes():
     # without a face the eyes and labels are drawn and mirrored the same
     e2, _, g2, none = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.5), augment_generator(3, 0))
     assert none is None and torch.equal(e2, e) and torch.equal(g2, g)
+
+
+def _distinct_eyes(path):
+    """The set at ``path`` with right eyes unlike the left ones (a swap or a shifted row shows)."""
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        left = f["left_eye"][()]
+        f["right_eye"][...] = 255 - left[:, :, ::-1]
+    return path
+
+
+def test_resident_batches_are_the_streamed_ones(tmp_path):
+    import h5py
+
+    from gazeaug.train_data import ResidentSet, epoch_batches
+
+    subjects = tuple(f"s{i}" for i in range(5))
+    path = _distinct_eyes(synthetic_h5(tmp_path / "r.h5", n=700, subjects=subjects, runs=True, face_size=(20, 16)))
+    with h5py.File(path, "r") as f:  # the truth, read without gazeaug: every row's gaze is its name
+        truth = {k: f[k][()] for k in ("left_eye", "right_eye", "head_pose", "gaze", "face")}
+    row_of = {g.tobytes(): i for i, g in enumerate(truth["gaze"])}
+    assert len(row_of) == 700
+    cpu = torch.device("cpu")
+    for selection in (None, ["s1", "s3"]):  # s1, s3: rows 140-279 and 420-559, gaps inside 64-row chunks
+        data = H5TrainingSet(path, subjects=selection)
+        for face in (False, True):
+            resident = ResidentSet(data, cpu, face)
+            assert (resident.face_patches is not None) is face and resident.left.shape == (len(data), 36, 60, 3)
+            for batch_size, seed in ((32, 0), (100, 7), (1000, 3)):
+                streamed = list(epoch_batches(data, None, batch_size, np.random.default_rng(seed), face=face))
+                held = list(resident.batches(batch_size, np.random.default_rng(seed)))
+                assert [len(b["gaze"]) for b in held] == [len(b["gaze"]) for b in streamed]
+                rows = []
+                for s, h in zip(streamed, held):
+                    assert set(h) == set(s) == ({"eyes", "head_pose", "gaze"} | ({"face"} if face else set()))
+                    for k in s:
+                        assert h[k].dtype == s[k].dtype and torch.equal(h[k], s[k]), k
+                    idx = [row_of[g.tobytes()] for g in h["gaze"].numpy()]
+                    n = len(idx)
+                    np.testing.assert_array_equal(h["eyes"][:n].numpy(), truth["left_eye"][idx])
+                    np.testing.assert_array_equal(h["eyes"][n:].numpy(), truth["right_eye"][idx])
+                    np.testing.assert_array_equal(h["head_pose"].numpy(), truth["head_pose"][idx])
+                    if face:
+                        np.testing.assert_array_equal(h["face"].numpy(), truth["face"][idx])
+                    rows += idx
+                assert sorted(rows) == sorted(data.rows.tolist())  # one epoch: every row in use once
+
+
+def test_training_is_the_same_resident_or_streamed(tmp_path):
+    h5 = _distinct_eyes(synthetic_h5(tmp_path / "t.h5", n=150, subjects=("a", "b", "c"), runs=True))
+    s = TrainSettings(epochs=2, batch_size=32, seed=4, augment=TrainAugment(mirror=0.5))
+    logs = {p: train(h5, tmp_path / f"{p}.pt", s, val_subjects=["c"], progress=False, preload=p) for p in ("yes", "no")}
+    assert [r["train_error_deg"] for r in logs["yes"]] == [r["train_error_deg"] for r in logs["no"]]
+    held, streamed = load_model(tmp_path / "yes.pt")[0].state_dict(), load_model(tmp_path / "no.pt")[0].state_dict()
+    for k, v in held.items():
+        assert torch.equal(v, streamed[k]), k
+    with pytest.raises(GazeAugError, match="preload: expected one of auto, yes, no, got 'always'"):
+        train(h5, tmp_path / "x.pt", s, progress=False, preload="always")
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_preload_auto_holds_what_fits(tmp_path, monkeypatch):
+    import gazeaug.train_data as td
+
+    data = H5TrainingSet(synthetic_h5(tmp_path / "t.h5", n=100, face_size=(20, 16)))
+    # by hand: 2 eyes of 60 x 36 x 3 bytes, head pose and gaze 2 float32 each, an int64 index; a face 20 x 16 x 3
+    eyes_only, with_face = 100 * (2 * 6480 + 16 + 8), 100 * (2 * 6480 + 16 + 8 + 960)
+    assert td.resident_bytes(data, False) == eyes_only and td.resident_bytes(data, True) == with_face
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    real = td.memory_available(cpu)  # the host's reading, where there is one
+    assert real is None or real > 0
+    for free, device, face, want in (
+        (2 * eyes_only, cpu, False, True),  # exactly half the free memory: held
+        (2 * eyes_only - 1, cpu, False, False),
+        (2 * eyes_only, cpu, True, False),  # the face patches do not fit too
+        (None, cpu, False, False),  # unknown: streamed
+    ):
+        monkeypatch.setattr(td, "memory_available", lambda _device, free=free: free)
+        assert td.should_preload("auto", data, face, device) is want, (free, face)
+    monkeypatch.setattr(td, "memory_available", lambda _device: 10**15)
+    monkeypatch.setattr(td, "PRELOAD_MAX_HOST_BYTES", eyes_only - 1)  # the host's cap; a GPU has none
+    assert not td.should_preload("auto", data, False, cpu) and td.should_preload("auto", data, False, cuda)
+    monkeypatch.setattr(td, "memory_available", lambda _device: 0)
+    assert td.should_preload("yes", data, False, cpu) and not td.should_preload("no", data, False, cpu)
+    with pytest.raises(GazeAugError, match="preload: expected one of auto, yes, no, got 'sometimes'"):
+        td.should_preload("sometimes", data, False, cpu)
+
+
+def test_a_set_too_large_for_the_device_says_so_in_one_line(tmp_path, monkeypatch):
+    import gazeaug.train_data as td
+
+    data = H5TrainingSet(synthetic_h5(tmp_path / "t.h5", n=64))
+    real_empty = torch.empty
+
+    def no_memory(*args, **kwargs):
+        if args and args[0][0] == 64:
+            raise RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory")
+        return real_empty(*args, **kwargs)
+
+    monkeypatch.setattr(torch, "empty", no_memory)
+    with pytest.raises(GazeAugError, match=r"t\.h5: its 64 rows \(0\.0 GiB\) do not fit on cpu; stream them instead"):
+        td.ResidentSet(data, torch.device("cpu"))
