@@ -49,7 +49,14 @@ from .models.preprocess import (
 )
 from .normalize import NormalizationSettings
 from .train_augment import TrainAugment, augment_generator
-from .train_data import PRELOAD_CHOICES, ResidentSet, epoch_batches, prefetch_batches, should_preload, train_inputs
+from .train_data import (
+    ResidentSet,
+    check_preload,
+    epoch_batches,
+    prefetch_batches,
+    should_preload,
+    train_inputs,
+)
 
 __all__ = [
     "TrainSettings",
@@ -681,8 +688,7 @@ def train(
         raise GazeAugError(f"{out}: the model file must end in .pt")
     if val_path is not None and val_subjects:
         raise GazeAugError("give a validation set or validation subjects, not both")
-    if preload not in PRELOAD_CHOICES:
-        raise GazeAugError(f"preload: expected one of {', '.join(PRELOAD_CHOICES)}, got {preload!r}")
+    check_preload(preload)  # before any work
     if val_subjects is not None:
         if isinstance(val_subjects, (str, bytes)):
             raise GazeAugError(f"validation subjects: expected a list of names, got the string {val_subjects!r}")

@@ -39,6 +39,7 @@ __all__ = [
     "ResidentSet",
     "memory_available",
     "resident_bytes",
+    "check_preload",
     "should_preload",
     "prefetch_batches",
     "train_inputs",
@@ -91,6 +92,12 @@ def memory_available(device: Any) -> int | None:
     return None
 
 
+def check_preload(preload: Any) -> None:
+    """Raise :class:`GazeAugError` unless ``preload`` is one of :data:`PRELOAD_CHOICES`."""
+    if preload not in PRELOAD_CHOICES:
+        raise GazeAugError(f"preload: expected one of {', '.join(PRELOAD_CHOICES)}, got {preload!r}")
+
+
 def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any) -> bool:
     """Whether training holds ``data`` resident on ``device`` (:data:`PRELOAD_CHOICES`).
 
@@ -101,8 +108,7 @@ def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any) -
     Raises:
         GazeAugError: ``preload`` is not one of :data:`PRELOAD_CHOICES`.
     """
-    if preload not in PRELOAD_CHOICES:
-        raise GazeAugError(f"preload: expected one of {', '.join(PRELOAD_CHOICES)}, got {preload!r}")
+    check_preload(preload)
     if preload != "auto":
         return preload == "yes"
     need = resident_bytes(data, face)
