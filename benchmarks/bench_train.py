@@ -11,6 +11,9 @@ and on CUDA when there is one, for every batch size measures one pass over it:
   (background thread, uint8 tensors; pinned and copied to the GPU on CUDA);
 - ``read_augment``: the same plus :func:`gazeaug.train.train_inputs` (the
   training-time augmentation and the input scaling, on the device);
+- ``file_1_thread``, ``file_threads``: the rows in use of the eye-patch columns straight from
+  :meth:`gazeaug.io_h5.H5TrainingSet.batches`, h5py reading (1 thread) and the stored chunks
+  inflated by :func:`gazeaug.io_h5.read_threads` threads (the default);
 - ``load_resident``: rows per second of reading the whole set onto the device
   once (:class:`gazeaug.train_data.ResidentSet`);
 - ``read_resident``, ``read_augment_resident``: the passes above with the
@@ -41,7 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gazeaug.io_h5 import H5TrainingSet, H5Writer, Rows  # noqa: E402
+from gazeaug.io_h5 import H5TrainingSet, H5Writer, Rows, read_threads  # noqa: E402
 from gazeaug.train import TrainSettings, train, train_inputs  # noqa: E402
 from gazeaug.train_augment import TrainAugment, augment_generator  # noqa: E402
 from gazeaug.train_data import ResidentSet, epoch_batches  # noqa: E402
@@ -131,6 +134,11 @@ def measure(h5: Path, tmp: Path, batch_size: int, device_name: str, face: bool =
     device = torch.device(device_name)
     out = {"read": _pass(h5, batch_size, device, False), "read_augment": _pass(h5, batch_size, device, True)}
     data = H5TrainingSet(h5)
+    for what, threads in (("file_1_thread", 1), ("file_threads", None)):
+        t0 = time.perf_counter()
+        for _ in data.batches(batch_size, np.random.default_rng(0), H5TrainingSet.batch_keys(face), threads=threads):
+            pass
+        out[what] = round(len(data) / (time.perf_counter() - t0), 1)
     t0 = time.perf_counter()
     resident = ResidentSet(data, device, face)
     if device.type == "cuda":
@@ -181,6 +189,7 @@ def main(argv: list[str] | None = None) -> None:
             cuda = {str(b): measure(h5, Path(tmp), b, "cuda", face is not None) for b in args.batch_sizes}
         result = {
             "rows": args.rows,
+            "read_threads": read_threads(),
             "face_patch_wh": face,
             "threads": torch.get_num_threads(),
             "cpu": cpu,

@@ -220,7 +220,7 @@ def test_shuffled_batches_mix_the_whole_file(tmp_path):
     subjects = tuple(f"s{i:02d}" for i in range(16))
     path = _synthetic_h5(tmp_path / "runs.h5", n=4000, subjects=subjects, runs=True)
     with h5py.File(path, "r") as f:  # the truth, read without gazeaug
-        gaze, subject = f["gaze"][()], f["subject"][()]
+        gaze, subject, left = f["gaze"][()], f["subject"][()], f["left_eye"][()]
     assert len(set(subject[:2048].tolist())) == 9  # a 2048-row stretch of the file holds 9 subjects
     row_of = {g.tobytes(): i for i, g in enumerate(gaze)}
     assert len(row_of) == len(gaze)  # every row's gaze is its name
@@ -248,22 +248,36 @@ def test_shuffled_batches_mix_the_whole_file(tmp_path):
     assert sum(len(set(b["subject"].tolist())) == 2 for b in chosen) >= 0.9 * len(chosen)
     ordered = np.concatenate([b["gaze"] for b in some.batches(64, None, keys=("gaze", "left_eye"))])
     np.testing.assert_array_equal(ordered, gaze[want])
-    reads = []
-    real = h5py.Dataset.__getitem__
+    from gazeaug.io_h5 import ChunkedColumn
+
+    reads, chunks = [], []
+    real, real_chunk = h5py.Dataset.__getitem__, ChunkedColumn._chunk
 
     def counted(self, key):
         if self.name == "/left_eye" and isinstance(key, slice):
             reads.append((key.start, key.stop))
         return real(self, key)
 
-    h5py.Dataset.__getitem__ = counted
+    def counted_chunk(self, c):
+        if self.dset.name == "/left_eye":
+            chunks.append(c)
+        return real_chunk(self, c)
+
+    h5py.Dataset.__getitem__, ChunkedColumn._chunk = counted, counted_chunk
     try:
         for rng in (np.random.default_rng(2), None):
-            list(some.batches(16, rng, keys=("left_eye",)))
+            for threads in (1, 2):  # h5py reads slices; or the stored chunks, inflated in threads
+                got = list(some.batches(16, rng, keys=("left_eye", "gaze"), threads=threads))
+                np.testing.assert_array_equal(  # the same rows either way: each row's eye is its own
+                    np.concatenate([b["left_eye"] for b in got]),
+                    left[[row_of[g.tobytes()] for b in got for g in b["gaze"]]],
+                )
     finally:
-        h5py.Dataset.__getitem__ = real
+        h5py.Dataset.__getitem__, ChunkedColumn._chunk = real, real_chunk
     assert reads and all(lo >= 750 // 64 * 64 and hi <= 3000 and not (1000 <= lo < 2750) for lo, hi in reads)
     assert all(not (lo < 1000 and hi > 2750) for lo, hi in reads)  # never across the excluded subjects
+    # rows 750-999 and 2750-2999 lie in the 64-row chunks 11-15 and 42-46: no other chunk is read
+    assert chunks and set(chunks) == set(range(11, 16)) | set(range(42, 47))
 
 
 def test_axis_weights_by_hand():
@@ -716,3 +730,42 @@ def test_a_face_model_exports_to_onnx_with_a_face_input(tmp_path, capsys):
         ox.predict(d["left_eye"], d["right_eye"], d["head_pose"])
     with pytest.raises(GazeAugError, match=r"face patches: expected \(N, 32, 40, 3\)"):
         ox.predict(d["left_eye"], d["right_eye"], d["head_pose"], d["face"][:, :, :20])
+
+
+def test_chunked_columns_read_what_h5py_reads(tmp_path):
+    import zlib
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gazeaug.io_h5 import ChunkedColumn
+
+    rng = np.random.default_rng(0)
+    rows = rng.integers(0, 255, (300, 6, 5, 3), dtype=np.uint8)
+    path = tmp_path / "layouts.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("gzip", data=rows, chunks=(64, 6, 5, 3), compression="gzip")  # as our writer stores
+        f.create_dataset("shuffled", data=rows, chunks=(64, 6, 5, 3), compression="gzip", shuffle=True)
+        f.create_dataset("plain", data=rows)  # contiguous
+        f.create_dataset("tiled", data=rows, chunks=(64, 3, 5, 3), compression="gzip")  # a chunk: half a row
+        raw = f.create_dataset("skipped", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
+        for c in range(5):  # stored without the deflate filter (filter mask 1), as HDF5 may store a chunk
+            block = np.zeros((64, 6, 5, 3), np.uint8)
+            block[: len(rows[64 * c : 64 * c + 64])] = rows[64 * c : 64 * c + 64]
+            raw.id.write_direct_chunk((64 * c, 0, 0, 0), block.tobytes(), filter_mask=1)
+        bad = f.create_dataset("damaged", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
+        bad[...] = rows
+        bad.id.write_direct_chunk((64, 0, 0, 0), b"not deflate at all")
+        short = f.create_dataset("short", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
+        short[...] = rows
+        short.id.write_direct_chunk((0, 0, 0, 0), zlib.compress(bytes(100)))
+    spans = [(0, 1), (5, 200), (63, 65), (128, 192), (290, 300), (0, 300)]
+    with h5py.File(path, "r") as f, ThreadPoolExecutor(2) as pool:
+        for key, direct in (("gzip", True), ("skipped", True), ("shuffled", False), ("plain", False), ("tiled", False)):
+            for p in (pool, None):
+                col = ChunkedColumn(f[key], p)
+                assert col.direct is (direct and p is not None), key
+                for (lo, hi), got in zip(spans, col.read_runs(spans)):
+                    np.testing.assert_array_equal(got, rows[lo:hi], err_msg=f"{key} {lo}:{hi}")
+        with pytest.raises(GazeAugError, match=r"layouts\.h5: /damaged chunk 1 is damaged"):
+            ChunkedColumn(f["damaged"], pool).read_runs([(60, 70)])
+        with pytest.raises(GazeAugError, match=r"/short chunk 0 holds 100 bytes, expected 5760"):
+            ChunkedColumn(f["short"], pool).read_runs([(0, 10)])
