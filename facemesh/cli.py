@@ -42,6 +42,7 @@ REMEDIES = {
     "format": "pass --format",
     "landmarks": "pass --landmarks with the model's own points",
     "face_model": "pass --face-model (the 3D points your landmarks correspond to)",
+    "stream": "pass --preload no to stream them from the file instead",
     "keypoints": f"pass --keypoints (a layout: {', '.join(KEYPOINTS)}; or the indices RO,RI,LI,LO[,MR,ML])",
 }
 

@@ -517,8 +517,12 @@ def _no_pool() -> Iterator[None]:
 
 
 def read_threads() -> int:
-    """Threads that decompress a training set's chunks (:class:`ChunkedColumn`): the CPUs, at most 8."""
-    return max(1, min(8, os.cpu_count() or 1))
+    """Threads that inflate a training set's chunks (:class:`ChunkedColumn`): this process's CPUs, at most 8."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on every platform
+        cpus = os.cpu_count() or 1
+    return max(1, min(8, cpus))
 
 
 class ChunkedColumn:
@@ -543,6 +547,7 @@ class ChunkedColumn:
         plist = dset.id.get_create_plist()
         self.direct = bool(
             pool is not None
+            and dset.dtype.kind in "biuf"  # fixed-size numbers (variable-length strings are h5py's)
             and chunks is not None
             and tuple(chunks[1:]) == tuple(dset.shape[1:])  # a chunk holds whole rows
             and plist.get_nfilters() == 1
@@ -550,6 +555,9 @@ class ChunkedColumn:
         )
         self.rows_per_chunk = int(chunks[0]) if chunks is not None else 0
         self._chunk_shape = tuple(int(c) for c in chunks) if chunks is not None else ()
+        # read here, not in the pool's threads (only zlib runs there: h5py's calls take its lock)
+        self._dtype = dset.dtype
+        self._where = f"{dset.file.filename}: {dset.name}"
 
     def _chunk(self, c: int) -> tuple[int, bytes]:
         offset = (c * self.rows_per_chunk,) + (0,) * (len(self._chunk_shape) - 1)
@@ -558,23 +566,25 @@ class ChunkedColumn:
 
     def _inflate(self, item: tuple[int, int, bytes]) -> NDArray[Any]:
         c, mask, raw = item
-        where = f"{self.dset.file.filename}: {self.dset.name} chunk {c}"
         try:
             data = raw if mask & 1 else zlib.decompress(raw)  # mask bit 0: the deflate filter was skipped
         except zlib.error as exc:
-            raise GazeAugError(f"{where} is damaged ({exc})") from exc
-        want = int(np.prod(self._chunk_shape)) * self.dset.dtype.itemsize
+            raise GazeAugError(f"{self._where} chunk {c} is damaged ({exc})") from exc
+        want = int(np.prod(self._chunk_shape)) * self._dtype.itemsize
         if len(data) != want:
-            raise GazeAugError(f"{where} holds {len(data)} bytes, expected {want}")
-        return np.frombuffer(data, dtype=self.dset.dtype).reshape(self._chunk_shape)
+            raise GazeAugError(f"{self._where} chunk {c} holds {len(data)} bytes, expected {want}")
+        return np.frombuffer(data, dtype=self._dtype).reshape(self._chunk_shape)
 
     def read_runs(self, runs: Sequence[tuple[int, int]]) -> list[NDArray[Any]]:
         """The rows ``[lo, hi)`` of each run, as arrays (the same as ``dset[lo:hi]`` each)."""
-        if not self.direct:
+        if not self.direct or any(hi <= lo for lo, hi in runs):
             return [self.dset[lo:hi] for lo, hi in runs]
         k = self.rows_per_chunk
         wanted = sorted({c for lo, hi in runs for c in range(lo // k, (hi - 1) // k + 1)})
-        raws = [(c, *self._chunk(c)) for c in wanted]  # the stored bytes: fast, under h5py's lock
+        try:
+            raws = [(c, *self._chunk(c)) for c in wanted]  # the stored bytes: fast, under h5py's lock
+        except (RuntimeError, OSError, ValueError):  # a chunk never written (h5py gives its fill value)
+            return [self.dset[lo:hi] for lo, hi in runs]
         chunks = dict(zip(wanted, self.pool.map(self._inflate, raws)))
         out = []
         for lo, hi in runs:

@@ -49,14 +49,7 @@ from .models.preprocess import (
 )
 from .normalize import NormalizationSettings
 from .train_augment import TrainAugment, augment_generator
-from .train_data import (
-    ResidentSet,
-    check_preload,
-    epoch_batches,
-    prefetch_batches,
-    should_preload,
-    train_inputs,
-)
+from .train_data import check_preload, epoch_batches, hold_rows, prefetch_batches, train_inputs
 
 __all__ = [
     "TrainSettings",
@@ -811,6 +804,9 @@ def _train(
             raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint ({exc.__class__.__name__}: {exc})") from exc
         if not 0 <= start_epoch <= n_epochs or len(log) != start_epoch:
             raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (epoch {start_epoch}, {len(log)} log rows)")
+    cuda = device.type == "cuda"
+    # the same batches either way (train_data): held on the device, read once, or streamed each epoch
+    resident = hold_rows(data, device, face, preload)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -819,9 +815,6 @@ def _train(
             total=n_epochs * len(data), initial=start_epoch * len(data), unit="sample", desc="train", dynamic_ncols=True
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
-    cuda = device.type == "cuda"
-    # the same batches either way (train_data): held on the device, read once, or streamed each epoch
-    resident = ResidentSet(data, device, face) if should_preload(preload, data, face, device) else None
     with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
         for epoch in range(start_epoch, n_epochs):
             rng = np.random.default_rng([s.seed, epoch])

@@ -37,6 +37,9 @@ __all__ = [
     "PRELOAD_SHARE",
     "PRELOAD_MAX_HOST_BYTES",
     "ResidentSet",
+    "ResidentSetTooLarge",
+    "hold_rows",
+    "epoch_batches",
     "memory_available",
     "resident_bytes",
     "check_preload",
@@ -75,13 +78,13 @@ def resident_bytes(data: H5TrainingSet, face: bool) -> int:
 def memory_available(device: Any) -> int | None:
     """Bytes free on ``device`` (a ``torch.device``); None when unknown.
 
-    CUDA's free memory, or the host's available memory (``MemAvailable`` of ``/proc/meminfo``;
-    elsewhere the free physical pages).
+    CUDA's free memory (with what PyTorch's caching allocator holds unused), or the host's
+    available memory (``MemAvailable`` of ``/proc/meminfo``; elsewhere the free physical pages).
     """
     torch = import_torch()
-    if device.type == "cuda":
+    if device.type == "cuda":  # what PyTorch's caching allocator holds unused is free to it too
         free, _ = torch.cuda.mem_get_info(device)
-        return int(free)
+        return int(free) + int(torch.cuda.memory_reserved(device)) - int(torch.cuda.memory_allocated(device))
     with contextlib.suppress(OSError, ValueError):
         with open("/proc/meminfo", encoding="ascii") as fh:
             for line in fh:
@@ -118,6 +121,29 @@ def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any) -
     return device.type == "cuda" or need <= PRELOAD_MAX_HOST_BYTES
 
 
+class ResidentSetTooLarge(GazeAugError):
+    """The device cannot hold a training set's rows (:class:`ResidentSet`); ``remedy="stream"``: ``preload="no"``."""
+
+
+def hold_rows(data: H5TrainingSet, device: Any, face: bool, preload: str) -> ResidentSet | None:
+    """The :class:`ResidentSet` training uses, or None to stream (:func:`should_preload`).
+
+    ``auto`` streams, with a warning, a set whose allocation fails although it looked as if it
+    fitted; ``yes`` raises :class:`ResidentSetTooLarge` then.
+    """
+    if not should_preload(preload, data, face, device):
+        return None
+    try:
+        return ResidentSet(data, device, face)
+    except ResidentSetTooLarge as exc:
+        if preload == "yes":
+            raise
+        import warnings
+
+        warnings.warn(f"{exc}: streaming them from the file instead", RuntimeWarning, stacklevel=2)
+        return None
+
+
 class ResidentSet:
     """The rows in use of a training set, held as tensors on the training device (read once).
 
@@ -134,7 +160,9 @@ class ResidentSet:
         face_patches: uint8 (K, Hf, Wf, 3) RGB, or None.
 
     Raises:
-        GazeAugError: the device cannot hold the rows (the message gives their size).
+        ResidentSetTooLarge: the device cannot hold the rows (the message gives their size): on
+            the host, more than the memory available (an allocation there succeeds whatever its
+            size and fails page by page as it is filled); on a GPU, when allocating them fails.
     """
 
     def __init__(self, data: H5TrainingSet, device: Any, face: bool = False):
@@ -144,6 +172,14 @@ class ResidentSet:
         self._device = device
         w, h = data.patch_size_wh
         k = len(data)
+        need = resident_bytes(data, self.face)
+        too_large = ResidentSetTooLarge(
+            f"{data.path}: its {k} rows ({need / 2**30:.1f} GiB) do not fit on {device}", remedy="stream"
+        )
+        if device.type != "cuda":
+            free = memory_available(device)
+            if free is not None and need > free:
+                raise too_large
         try:
             self.left = torch.empty((k, h, w, 3), dtype=torch.uint8, device=device)
             self.right = torch.empty((k, h, w, 3), dtype=torch.uint8, device=device)
@@ -152,11 +188,7 @@ class ResidentSet:
                 fw, fh = data.face_patch_size_wh  # type: ignore[misc]
                 self.face_patches = torch.empty((k, fh, fw, 3), dtype=torch.uint8, device=device)
         except (RuntimeError, MemoryError) as exc:  # torch.cuda.OutOfMemoryError is a RuntimeError
-            gib = resident_bytes(data, self.face) / 2**30
-            raise GazeAugError(
-                f"{data.path}: its {k} rows ({gib:.1f} GiB) do not fit on {device}; "
-                "stream them instead (gazeaug train --preload no)"
-            ) from exc
+            raise too_large from exc
         keys = H5TrainingSet.batch_keys(self.face)
         lo = 0
         with contextlib.closing(data.batches(_LOAD_ROWS, None, keys)) as it:  # type: ignore[type-var]

@@ -757,7 +757,11 @@ def test_chunked_columns_read_what_h5py_reads(tmp_path):
         short = f.create_dataset("short", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
         short[...] = rows
         short.id.write_direct_chunk((0, 0, 0, 0), zlib.compress(bytes(100)))
-    spans = [(0, 1), (5, 200), (63, 65), (128, 192), (290, 300), (0, 300)]
+        sparse = f.create_dataset("sparse", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
+        sparse[64:128] = rows[64:128]  # the other chunks never written: h5py gives the fill value, 0
+        words = np.array([f"w{i}" * (i % 5) for i in range(300)], dtype=object)
+        f.create_dataset("words", data=words, dtype=h5py.string_dtype(), chunks=(64,), compression="gzip")
+    spans = [(0, 1), (5, 200), (63, 65), (128, 192), (290, 300), (0, 300), (64, 64)]
     with h5py.File(path, "r") as f, ThreadPoolExecutor(2) as pool:
         for key, direct in (("gzip", True), ("skipped", True), ("shuffled", False), ("plain", False), ("tiled", False)):
             for p in (pool, None):
@@ -765,6 +769,15 @@ def test_chunked_columns_read_what_h5py_reads(tmp_path):
                 assert col.direct is (direct and p is not None), key
                 for (lo, hi), got in zip(spans, col.read_runs(spans)):
                     np.testing.assert_array_equal(got, rows[lo:hi], err_msg=f"{key} {lo}:{hi}")
+        col = ChunkedColumn(f["sparse"], pool)
+        assert col.direct
+        filled = np.zeros_like(rows)
+        filled[64:128] = rows[64:128]
+        for (lo, hi), got in zip(spans, col.read_runs(spans)):
+            np.testing.assert_array_equal(got, filled[lo:hi])
+        col = ChunkedColumn(f["words"], pool)  # variable-length strings: h5py reads them
+        assert not col.direct
+        assert [w.decode() for w in col.read_runs([(3, 9)])[0]] == [str(w) for w in words[3:9]]
         with pytest.raises(GazeAugError, match=r"layouts\.h5: /damaged chunk 1 is damaged"):
             ChunkedColumn(f["damaged"], pool).read_runs([(60, 70)])
         with pytest.raises(GazeAugError, match=r"/short chunk 0 holds 100 bytes, expected 5760"):

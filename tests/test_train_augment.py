@@ -468,6 +468,7 @@ def test_preload_auto_holds_what_fits(tmp_path, monkeypatch):
 
 def test_a_set_too_large_for_the_device_says_so_in_one_line(tmp_path, monkeypatch):
     import gazeaug.train_data as td
+    from facemesh.cli import error_line
 
     data = H5TrainingSet(synthetic_h5(tmp_path / "t.h5", n=64))
     real_empty = torch.empty
@@ -477,6 +478,22 @@ def test_a_set_too_large_for_the_device_says_so_in_one_line(tmp_path, monkeypatc
             raise RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory")
         return real_empty(*args, **kwargs)
 
+    cpu = torch.device("cpu")
     monkeypatch.setattr(torch, "empty", no_memory)
-    with pytest.raises(GazeAugError, match=r"t\.h5: its 64 rows \(0\.0 GiB\) do not fit on cpu; stream them instead"):
-        td.ResidentSet(data, torch.device("cpu"))
+    with pytest.raises(td.ResidentSetTooLarge, match=r"t\.h5: its 64 rows \(0\.0 GiB\) do not fit on cpu$") as caught:
+        td.ResidentSet(data, cpu)
+    line = error_line(caught.value)  # as the command line says it
+    assert line.endswith("do not fit on cpu; pass --preload no to stream them from the file instead")
+    # auto: it looked as if it fitted, the allocation failed: streamed, with a warning; yes: the error
+    with pytest.warns(RuntimeWarning, match="do not fit on cpu: streaming them from the file instead"):
+        assert td.hold_rows(data, cpu, False, "auto") is None
+    with pytest.raises(td.ResidentSetTooLarge, match="do not fit on cpu"):
+        td.hold_rows(data, cpu, False, "yes")
+    monkeypatch.setattr(torch, "empty", real_empty)
+    assert isinstance(td.hold_rows(data, cpu, False, "auto"), td.ResidentSet)
+    # on the host an allocation succeeds whatever its size (pages are taken as they are filled): a set larger
+    # than the memory available is refused before, whatever preload asks
+    monkeypatch.setattr(td, "memory_available", lambda _device: td.resident_bytes(data, False) - 1)
+    with pytest.raises(td.ResidentSetTooLarge, match="do not fit on cpu"):
+        td.hold_rows(data, cpu, False, "yes")
+    assert td.hold_rows(data, cpu, False, "auto") is None and td.hold_rows(data, cpu, False, "no") is None
