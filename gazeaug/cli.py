@@ -364,6 +364,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="samples per step (default: fitted to the training set's size, rows / 128 as a power of two, 32 to 256)",
     )
+    t.add_argument(
+        "--samples",
+        type=_positive_int,
+        default=None,
+        help="how many samples the fitted epochs show the model (default 500000; 1000000 read new people "
+        "better in one measured run, at twice the time: docs/model.md); ignored with --epochs",
+    )
     t.add_argument("--lr", type=finite_float, default=None, help=LR_HELP)
     t.add_argument(
         "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
@@ -983,6 +990,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         model=args.model,
         epochs=args.epochs,
         batch_size=args.batch_size,
+        auto_samples=TrainSettings.auto_samples if args.samples is None else args.samples,
         lr=TrainSettings.lr if args.lr is None else args.lr,
         seed=args.seed,
         device=args.device,
@@ -996,7 +1004,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         val_subjects=args.val_subjects,
         resume=args.resume,
         progress=not args.quiet,
-        given=() if args.lr is None else ("lr",),
+        given=tuple(k for k, v in (("lr", args.lr), ("auto_samples", args.samples)) if v is not None),
         preload=args.preload,
     )
     print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))

@@ -215,6 +215,7 @@ def test_a_run_begun_before_the_defaults_of_2026_11_25_resumes_as_it_began(tmp_p
 
     argv = ["train", str(h5), "-o", str(out), "--resume", "--epochs", "2", "--batch-size", "16", "--quiet"]
     assert main([*argv, "--lr", "0.003"]) == 2
+    assert main([*argv, "--samples", "500000"]) == 2  # today's default given on purpose: another setting
     log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
     assert [r["epoch"] for r in log] == [1, 2]
     made = torch.load(out, weights_only=True)

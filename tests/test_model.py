@@ -168,6 +168,12 @@ def test_a_model_file_records_the_fitted_epochs_and_batch(tmp_path):
     _, meta = load_model(tmp_path / "m.pt")
     ts = meta["train_settings"]
     assert ts["epochs"] == 1 and ts["batch_size"] == 32 and rows < 5793
+    # the samples the fitted epochs show (gazeaug train --samples): 1440 over 96 rows is 15 epochs, by hand
+    assert rows == 96
+    out = tmp_path / "s.pt"
+    assert main(["train", str(data), "-o", str(out), "--samples", "1440", "--quiet"]) == 0
+    ts = load_model(out)[1]["train_settings"]
+    assert ts["auto_samples"] == 1440 and ts["epochs"] == 15 and ts["batch_size"] == 32
 
 
 def test_one_reader_of_the_training_set_schema(tmp_path):
