@@ -235,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .models import MODELS
     from .render import RENDERERS
     from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
+    from .train_data import PRELOAD_CHOICES
 
     formats = DATASETS.names()  # the registries' names: listing them imports no reader, renderer or model
     renderers = RENDERERS.names(benchmark_only=False)
@@ -390,7 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_train_input_options(t)
     t.add_argument(
         "--preload",
-        choices=("auto", "yes", "no"),
+        choices=PRELOAD_CHOICES,
         default="auto",
         help="hold the training rows on the device, read once (yes), or stream them from the file each epoch (no); "
         "auto: held when they fit in half the memory free there, on the host at most 16 GiB. The same model "
