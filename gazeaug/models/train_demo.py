@@ -15,10 +15,12 @@ own drawn identity (shape, eyes, skin, glasses, kappa, light). Two recipes:
   paper's recipe.
 
 Then ``gazeaug train`` with its fitted defaults. Everything derives from
-``--seed``; the same inputs and versions give the same model. The model file
-records the recipe (its ``demo`` entry); ``demo_wheelchair.json`` beside it
-says how it was made and what it measured (docs/tracking.md). Takes about 12
-minutes on 2 cores.
+``--seed``; the same inputs and versions give the same model. The card
+``demo_wheelchair.json`` written beside it records the recipe and how it was
+made; what the shipped file measured (``benchmarks/demo_model.py``,
+``benchmarks/track_accuracy.py``) is added to the card by hand under
+``measured`` (docs/tracking.md). Takes about 17 minutes on 2 cores
+(2026-11-28).
 
 It is a demonstration of the pipeline, not a gaze tracker for real users:
 measured on simulated people it never saw, and on one real MPIIFaceGaze frame,
