@@ -55,7 +55,7 @@ KINDS = ("none", "bias", "scale", "affine")
 #: Points each correction needs (it is fitted on one fewer when one is left out). The affine map
 #: needs 12: on the 9 points of the calibration grid it passed leave-one-out (13.1 deg left out
 #: against 16.6 uncorrected) and then made a simulated person's test sequence worse (median
-#: 18.4 -> 20.3 deg; benchmarks/track_accuracy.py with the demo model).
+#: 18.4 -> 20.3 deg; benchmarks/track_accuracy.py with the demo model of 2026-11-23).
 MIN_POINTS = {"none": 2, "bias": 2, "scale": 3, "affine": 12}
 #: A calibration file's bounds: a gain (matrix entry) up to this, an offset up to this many degrees.
 MAX_GAIN = 5.0

@@ -16,8 +16,8 @@ own drawn identity (shape, eyes, skin, glasses, kappa, light). Two recipes:
 
 Then ``gazeaug train`` with its fitted defaults. Everything derives from
 ``--seed``; the same inputs and versions give the same model. The card
-``demo_wheelchair.json`` written beside it records the recipe and how it was
-made; what the shipped file measured (``benchmarks/demo_model.py``,
+``demo_wheelchair.json`` written beside it records the recipe, the day and how
+it was made; what the shipped file measured (``benchmarks/demo_model.py``,
 ``benchmarks/track_accuracy.py``) is added to the card by hand under
 ``measured`` (docs/tracking.md). Takes about 17 minutes on 2 cores
 (2026-11-28).
@@ -30,6 +30,7 @@ in docs/tracking.md.
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import shutil
 import sys
@@ -106,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             "rig": "wheelchair",
             "per_face": args.per_face,
             "seed": args.seed,
+            "trained": datetime.date.today().isoformat(),
             "train_error_deg": round(float(log[-1]["train_error_deg"]), 2),
             "epochs": len(log),
             "minutes": round((time.perf_counter() - t0) / 60, 1),
