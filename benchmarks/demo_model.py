@@ -1,6 +1,6 @@
 """How good is a gaze model (the built-in demo model by default) on people it never saw?
 
-``python benchmarks/demo_model.py [--model M.pt] [--per-person 50] [-o /tmp/demo_eval]``
+``python benchmarks/demo_model.py [--model M.pt] [--per-person 50] [-o /tmp/demo_eval] [--card]``
 
 1. **Simulated held-apart people**: the test people of ``benchmarks/people.py`` (none among
    the demo's training photos), ``--per-person`` images each in the ``wheelchair`` rig
@@ -11,7 +11,8 @@
    the angle between the predicted gaze and the direction from the face centre to the
    annotated 3D target.
 
-Prints one JSON line.
+Prints one JSON line; ``--card`` also records it in the model's card (``M.json``, under
+``measured.demo_model``; ``benchmarks/card.py``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def main() -> None:
     ap.add_argument("--per-person", type=int, default=50)
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/demo_eval"))
+    ap.add_argument("--card", action="store_true", help="record the figures in the model's card (M.json)")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     est = load_estimator(args.model)
@@ -100,6 +102,13 @@ def main() -> None:
     if real.is_dir():
         out["real_mpiifacegaze_frame_deg"] = round(real_frame_error(est, real), 2)
     print(json.dumps(out))
+    if args.card:
+        from card import record, shown  # benchmarks/card.py
+
+        figures = {k: v for k, v in out.items() if k != "model"}
+        per = "" if args.per_person == 50 else f" --per-person {args.per_person}"
+        command = f"python benchmarks/demo_model.py --model {shown(args.model)}{per} --card"
+        print(f"recorded in {record(args.model, 'demo_model', figures, command)}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Point of gaze, selection and calibration on simulated people with exact ground truth.
 
-``python benchmarks/track_accuracy.py --model M.pt [--people 4] [--seconds 20] [-o /tmp/track_acc]``
+``python benchmarks/track_accuracy.py --model M.pt [--people 4] [--seconds 20] [-o /tmp/track_acc] [--card]``
 
 For each of the first ``--people`` test people of ``benchmarks/people.py`` (none
 of them among any training photos), with the ``wheelchair_objects`` rig:
@@ -15,7 +15,8 @@ of them among any training photos), with the ``wheelchair_objects`` rig:
 
 Prints one JSON line per person and one with the medians over people: gaze error
 (deg, mm), selection accuracy, false selections per minute, before and after
-calibration, and the correction kept.
+calibration, and the correction kept; ``--card`` also records the medians in the model's
+card (``M.json``, under ``measured.track_accuracy``; ``benchmarks/card.py``).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/track_acc"))
     ap.add_argument("--fresh", action="store_true", help="simulate the sequences again even if OUT has them")
+    ap.add_argument("--card", action="store_true", help="record the medians in the model's card (M.json)")
     args = ap.parse_args()
     if args.fresh:
         import shutil
@@ -89,24 +91,30 @@ def main() -> None:
         vals = [v for v in vals if v is not None]
         return round(float(np.median(vals)), 2) if vals else None
 
-    print(
-        json.dumps(
-            {
-                "people": len(rows),
-                "model": str(args.model),
-                **{
-                    f"{when}_{name}": med(key, sub, when)
-                    for when in ("before", "after")
-                    for name, key, sub in (
-                        ("median_gaze_error_deg", "gaze_error_deg", "median"),
-                        ("median_gaze_error_mm", "gaze_error_mm", "median"),
-                        ("selection_accuracy", "selection_accuracy", None),
-                        ("false_per_minute", "false_per_minute", None),
-                    )
-                },
-            }
+    summary = {
+        "people": len(rows),
+        "model": str(args.model),
+        **{
+            f"{when}_{name}": med(key, sub, when)
+            for when in ("before", "after")
+            for name, key, sub in (
+                ("median_gaze_error_deg", "gaze_error_deg", "median"),
+                ("median_gaze_error_mm", "gaze_error_mm", "median"),
+                ("selection_accuracy", "selection_accuracy", None),
+                ("false_per_minute", "false_per_minute", None),
+            )
+        },
+    }
+    print(json.dumps(summary))
+    if args.card:
+        from card import record, shown  # benchmarks/card.py
+
+        figures = {k: v for k, v in summary.items() if k != "model"}
+        seconds = "" if args.seconds == 20.0 else f" --seconds {args.seconds:g}"
+        command = (
+            f"python benchmarks/track_accuracy.py --model {shown(args.model)} --people {args.people}{seconds} --card"
         )
-    )
+        print(f"recorded in {record(args.model, 'track_accuracy', figures, command)}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -17,10 +17,11 @@ own drawn identity (shape, eyes, skin, glasses, kappa, light). Two recipes:
 Then ``gazeaug train`` with its fitted defaults. Everything derives from
 ``--seed``; the same inputs and versions give the same model. The card
 ``demo_wheelchair.json`` written beside it records the recipe, the day and how
-it was made; what the shipped file measured (``benchmarks/demo_model.py``,
-``benchmarks/track_accuracy.py``) is added to the card by hand under
-``measured`` (docs/tracking.md). Takes about 17 minutes on 2 cores
-(2026-11-28).
+it was made (written afresh, so a new model starts without figures); what the
+file measured goes under ``measured`` by running ``python
+benchmarks/demo_model.py --model M.pt --card`` and ``python
+benchmarks/track_accuracy.py --model M.pt --card`` (docs/tracking.md). Takes
+about 17 minutes on 2 cores (2026-11-28).
 
 It is a demonstration of the pipeline, not a gaze tracker for real users:
 measured on simulated people it never saw, and on one real MPIIFaceGaze frame,

@@ -1,0 +1,61 @@
+"""benchmarks/card.py: a benchmark's figures go into the model's card without losing what it held."""
+
+from __future__ import annotations
+
+import datetime
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _card_module():
+    spec = importlib.util.spec_from_file_location("bench_card", ROOT / "benchmarks" / "card.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_figures_join_the_card_beside_what_it_held(tmp_path):
+    card = _card_module()
+    model = tmp_path / "m.pt"
+    (tmp_path / "m.json").write_text(json.dumps({"model": "m.pt", "epochs": 3, "measured": {"old": {"x": 1}}}))
+    path = card.record(model, "demo_model", {"mean_deg": 10.5}, "python benchmarks/demo_model.py --card")
+    assert path == tmp_path / "m.json"
+    got = json.loads(path.read_text())
+    assert got["model"] == "m.pt" and got["epochs"] == 3  # what train_demo wrote stays
+    assert got["measured"]["old"] == {"x": 1}  # another benchmark's entry stays
+    today = datetime.date.today().isoformat()
+    assert got["measured"]["demo_model"] == {
+        "command": "python benchmarks/demo_model.py --card",
+        "date": today,
+        "mean_deg": 10.5,
+    }
+    card.record(model, "demo_model", {"mean_deg": 9.0}, "c")  # a rerun replaces its own entry
+    got = json.loads(path.read_text())
+    assert got["measured"]["demo_model"]["mean_deg"] == 9.0 and got["measured"]["old"] == {"x": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]  # no temporary file left
+
+
+def test_a_model_without_a_card_gets_one_and_a_broken_card_is_refused_untouched(tmp_path):
+    card = _card_module()
+    path = card.record(tmp_path / "new.pt", "track_accuracy", {"people": 4}, "c")
+    assert json.loads(path.read_text())["measured"]["track_accuracy"]["people"] == 4
+    broken = tmp_path / "b.json"
+    broken.write_text("{not json")
+    with pytest.raises(SystemExit, match=r"b\.json: the model card is not readable JSON"):
+        card.record(tmp_path / "b.pt", "demo_model", {}, "c")
+    assert broken.read_text() == "{not json"
+    (tmp_path / "l.json").write_text("[1, 2]")
+    with pytest.raises(SystemExit, match="must be a JSON object, got list"):
+        card.record(tmp_path / "l.pt", "demo_model", {}, "c")
+
+
+def test_a_model_inside_the_repository_is_named_relative_to_it(tmp_path):
+    card = _card_module()
+    assert card.shown(ROOT / "gazeaug" / "models" / "demo_wheelchair.pt") == "gazeaug/models/demo_wheelchair.pt"
+    assert card.shown(tmp_path / "m.pt") == str(tmp_path / "m.pt")
