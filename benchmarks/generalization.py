@@ -1,7 +1,7 @@
 """Issue 13's target run: train on the 9 single-face photos, test on other people in the wheelchair rig.
 
 ``python benchmarks/generalization.py -o /tmp/gen [--seeds 3] [--identities 40] [--per-face 40]
-[--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--reuse-simulated]
+[--test-per-person 15] [--per-sample 4] [--no-vary] [--redirect-eyes] [--with-source] [--reuse-simulated]
 [--focal 650] [--distance 600] [--patch-size 60 36] [--no-antialias] [--lr 3e-3] [--no-balance-axes]``
 
 (``--lr 1e-3 --no-balance-axes`` trains as the defaults before 2026-11-25 did.)
@@ -144,6 +144,11 @@ def run() -> None:
         help="augment with gaze redirection: 3D eyes turned to the wheelchair rig's targets (JobSettings.eyes)",
     )
     ap.add_argument(
+        "--with-source",
+        action="store_true",
+        help="the augmented model also trains on the original rows (ExperimentSettings.with_source)",
+    )
+    ap.add_argument(
         "--reuse-simulated",
         action="store_true",
         help="keep the simulated sets an earlier run left in OUT; refused when one was made with other options",
@@ -234,6 +239,7 @@ def run() -> None:
         seeds=args.seeds,
         rig=rig,
         eyes="redirect" if args.redirect_eyes else "keep",
+        with_source=args.with_source,
         normalization=normalization,
     )
     res = run_experiment(train_dir, test_dir, out / "report", settings, test_same_rig=same_dir, progress=False)

@@ -216,6 +216,16 @@ def _add_eyes_option(
     )
 
 
+def _add_with_source_option(p: argparse.ArgumentParser, what: str = "the set") -> None:
+    p.add_argument(
+        "--with-source",
+        action="store_true",
+        help=f"{what} also holds each source's own normalized row (the original data beside its augmentation; "
+        "on issue 13's benchmark 9.95 -> 9.13 deg, docs/model.md) (default: the augmented rows alone, the "
+        "paper's protocol)",
+    )
+
+
 def _eyes(args: argparse.Namespace) -> str:
     """``JobSettings.eyes`` from ``--redirect-eyes`` (which needs ``--rig``)."""
     from .errors import GazeAugError
@@ -340,6 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
             a.add_argument("--renderer", choices=renderers, default="raycast", help=RENDERER_HELP)
             _add_distribution_options(a)
             _add_eyes_option(a)
+            _add_with_source_option(a)
 
     t = sub.add_parser("train", help="train the gaze model on an HDF5 training set")
     t.add_argument("train", type=Path, help="training set (.h5 from augment or normalize-dataset)")
@@ -593,6 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
         "with --train/--test each sample keeps its source's gaze in the head, the paper's method; the built-in "
         f"setup redirects the eyes, to --rig {BUILTIN_TEST_RIG} unless another is given",
     )
+    _add_with_source_option(xp, "the augmented model's training set")
     xp.add_argument(
         "--keep-eyes",
         action="store_true",
@@ -915,6 +927,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
             normalization=_settings(args),
             rig=None if args.rig is None else load_rig(args.rig).as_dict(),
             eyes=_eyes(args),
+            with_source=args.with_source,
         )
     else:
         settings = JobSettings(kind="normalize-dataset", seed=args.seed, normalization=_settings(args))
@@ -1337,6 +1350,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         rig=None if args.rig is None else load_rig(args.rig),
         eyes=eyes,
+        with_source=args.with_source,
         normalization=normalization,
     )
     results = run_experiment(

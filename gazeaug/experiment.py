@@ -309,6 +309,9 @@ class ExperimentSettings:
             poses and gaze targets are drawn from it.
         eyes: ``"keep"`` (default, the paper's method) or ``"redirect"``: see
             :class:`gazeaug.jobs.JobSettings`.
+        with_source: the augmented model trains on the original rows as well as the augmented
+            ones (``JobSettings.with_source``; default False, the paper's protocol). The original
+            model is matched in steps either way.
         normalization: the normalized camera and eye patch of every set, the original, the
             augmented and the test sets alike (default: :class:`gazeaug.normalize.NormalizationSettings`'s,
             the paper's 650 px at 600 mm, 60 x 36 patches). The models record it and are
@@ -324,6 +327,7 @@ class ExperimentSettings:
     n_boot: int = 2000
     rig: Rig | None = None
     eyes: str = "keep"
+    with_source: bool = False
     normalization: NormalizationSettings = field(default_factory=NormalizationSettings)
 
     def __post_init__(self) -> None:
@@ -335,6 +339,8 @@ class ExperimentSettings:
             raise GazeAugError(f"eyes: expected one of {JobSettings.EYES}, got {self.eyes!r}")
         if self.eyes == "redirect" and self.rig is None:
             raise GazeAugError("redirected eyes need the application's rig (its targets give the gazes)")
+        if not isinstance(self.with_source, bool):
+            raise GazeAugError(f"with_source: expected true or false, got {self.with_source!r}")
         if not (isinstance(self.per_sample, int) and self.per_sample >= 1):
             raise GazeAugError(f"per_sample: expected an integer >= 1, got {self.per_sample!r}")
         if not (isinstance(self.seeds, int) and 1 <= self.seeds <= 100):
@@ -522,6 +528,7 @@ def run_experiment(
             rig=None if s.rig is None else s.rig.as_dict(),
             eyes=s.eyes,
             normalization=s.normalization,
+            with_source=s.with_source,
         )
         augmented = dataset(train_reader, aug_h5, job, "augmented")
         if i == 0:  # the report's pictures of the augmented set: the first seed's
@@ -622,6 +629,7 @@ def run_experiment(
         "per_sample": s.per_sample,
         "distribution": s.distribution.as_dict(),
         "eyes": s.eyes,
+        "with_source": s.with_source,
         "rig": None if s.rig is None else s.rig.name,
         "normalization": s.normalization.as_dict(),
         "train": asdict(s.train),
@@ -768,17 +776,19 @@ def steps_table(results: Mapping[str, Any]) -> str:
 def _augmentation_line(settings: Mapping[str, Any]) -> str:
     """What the augmented set was, in one sentence of the report."""
     k = settings.get("per_sample", "?")
+    source = " The augmented model also trains on the original rows (`--with-source`)."
+    source = source if settings.get("with_source") else ""
     if settings.get("eyes") == "redirect":
         return (
             f"Augmentation: K = {k} per sample, redirected eyes: head poses and gaze targets drawn from the "
-            f"`{settings.get('rig')}` rig, the eyes turned to the targets."
+            f"`{settings.get('rig')}` rig, the eyes turned to the targets.{source}"
         )
     d = settings.get("distribution") or {}
     mean = np.round(np.asarray(d.get("mean_deg", [np.nan] * 2), dtype=float), 1).tolist()
     cov = np.round(np.asarray(d.get("cov_deg2", [[np.nan] * 2] * 2), dtype=float), 1).tolist()
     return (
         f"Augmentation: K = {k} per sample, head poses (yaw, pitch) drawn from mean {mean} deg, "
-        f"covariance {cov} deg^2; each keeps its source's gaze in the head (the paper's method)."
+        f"covariance {cov} deg^2; each keeps its source's gaze in the head (the paper's method).{source}"
     )
 
 

@@ -780,3 +780,33 @@ def test_fuzzed_label_files_of_every_reader(request, tmp_path, fixture, label_fi
     valid = (root / label_file).read_bytes()
     for data in mutations(valid, seed=len(label_file), n=20):
         expect_typed_error(lambda p: _read_all(root), root / label_file, data)
+
+
+def test_with_source_adds_each_sources_normalized_row_and_leaves_the_draws_as_they_were(mpii_root, tmp_path):
+    plain, both, norm = tmp_path / "a.h5", tmp_path / "b.h5", tmp_path / "n.h5"
+    run_dataset(open_dataset(mpii_root), plain, JobSettings(kind="augment", per_sample=2, seed=5), progress=False)
+    settings = JobSettings(kind="augment", per_sample=2, seed=5, with_source=True)
+    summary = run_dataset(open_dataset(mpii_root), both, settings, progress=False)
+    run_dataset(open_dataset(mpii_root), norm, JobSettings(kind="normalize-dataset"), progress=False)
+    a, b, n = read_h5(plain), read_h5(both), read_h5(norm)
+    assert summary["rows"] == 6 and summary["skipped"] == 1  # 2 faces x (1 source row + K = 2), the faceless skipped
+    assert b["source_index"].tolist() == [0, 0, 0, 1, 1, 1]
+    source_rows, drawn_rows = [0, 3], [1, 2, 4, 5]
+    for k in a:
+        if k != "attrs":
+            np.testing.assert_array_equal(b[k][source_rows], n[k], err_msg=k)  # the row normalize-dataset writes
+            np.testing.assert_array_equal(b[k][drawn_rows], a[k], err_msg=k)  # the same draws as without it
+    assert np.isnan(b["sampled_yaw_pitch"][source_rows]).all()
+    assert b["attrs"]["settings"]["with_source"] is True and "with_source" not in a["attrs"]["settings"]
+    with pytest.raises(GazeAugError, match="with_source is an augmentation setting"):
+        JobSettings(kind="normalize-dataset", with_source=True)
+    with pytest.raises(GazeAugError, match="with_source: expected true or false, got 'yes'"):
+        JobSettings(with_source="yes")
+
+
+def test_cli_augment_with_source(folder_root, tmp_path, capsys):
+    out = tmp_path / "a.h5"
+    args = ["augment", str(folder_root), "-o", str(out), "--per-sample", "1", "--quiet", "--with-source"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["rows"] == 4  # 2 images x (source + 1)
+    assert read_h5(out)["attrs"]["settings"]["with_source"] is True

@@ -459,11 +459,14 @@ def test_experiment_runs_end_to_end(tmp_path, faces_dir, capsys):
     args = ["experiment", "--train", str(tmp_path / "train"), "--test", str(tmp_path / "test"), "-o", str(out)]
     # a normalization of its own (MPIIGaze's focal length, a smaller patch): every set and model takes it
     norm = ["--focal", "960", "--patch-size", "40", "24"]
-    assert main(args + ["--epochs", "1", "--per-sample", "2", "--seeds", "2", *norm, "--quiet"]) == 0
+    # --with-source: the augmented model's set holds the 2 original rows beside the 2 x 2 drawn ones
+    assert main(args + ["--epochs", "1", "--per-sample", "2", "--seeds", "2", *norm, "--with-source", "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "| training dataset | error, original data | error, augmented data | reduction |" in text
     res = json.loads((out / "results.json").read_text())
-    assert res["runs"]["original"]["test_count"] == 1 and res["runs"]["augmented"]["rows"] == 4
+    assert res["runs"]["original"]["test_count"] == 1 and res["runs"]["augmented"]["rows"] == 6
+    assert res["runs"]["original"]["rows"] == 2 and res["settings"]["with_source"] is True
+    assert "also trains on the original rows (`--with-source`)" in (out / "report.md").read_text()
     assert res["settings"]["normalization"]["focal_px"] == 960 and res["settings"]["normalization"][
         "patch_size_wh"
     ] == [

@@ -263,6 +263,9 @@ def test_cli_builtin_experiment_keep_eyes_is_the_papers_method(tmp_path, monkeyp
     assert seen["settings"].distribution == HeadPoseDistribution.from_variance(5.0, 30.0, 10.0, 10.0)
     assert main(["experiment", "-o", str(tmp_path / "xp"), "--rig", "screen", "--quiet"]) == 130
     assert seen["settings"].eyes == "redirect" and seen["settings"].rig.name == "screen"
+    assert seen["settings"].with_source is False  # the paper's protocol: the augmented rows alone
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--with-source", "--quiet"]) == 130
+    assert seen["settings"].with_source is True
 
 
 def test_cli_builtin_experiment_redirects_the_eyes_by_default(tmp_path):
