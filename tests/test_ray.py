@@ -211,6 +211,13 @@ def test_ray_gives_the_local_arrays_in_the_local_order(ray_local, dataset, local
     )
     _assert_same(tmp_path / "n_ray.h5", tmp_path / "n_local.h5")
     assert _contents(tmp_path / "n_ray.h5")["face"].shape[1:] == (24, 32, 3)
+    # and an augmentation with each source's own row (K + 1 rows per face): the same rows on Ray
+    both = JobSettings(kind="augment", per_sample=1, seed=7, with_source=True)
+    run_dataset(open_dataset(dataset), tmp_path / "s_local.h5", both, progress=False)
+    engine = Engine("ray", workers=2, block_size=3)
+    run_dataset(open_dataset(dataset), tmp_path / "s_ray.h5", both, progress=False, engine=engine)
+    _assert_same(tmp_path / "s_ray.h5", tmp_path / "s_local.h5")
+    assert _contents(tmp_path / "s_ray.h5")["source_index"].tolist() == [i for i in range(9) if i != 5 for _ in (0, 1)]
 
 
 class _Interrupting:
