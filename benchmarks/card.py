@@ -11,9 +11,14 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any
+
+
+class CardError(ValueError):
+    """The model's card exists but cannot be read as a JSON object."""
 
 
 def card_path(model: Path) -> Path:
@@ -37,7 +42,7 @@ def record(model: Path, key: str, figures: dict[str, Any], command: str) -> Path
     leaves the previous card. A model without a card gets one holding only ``measured``.
 
     Raises:
-        SystemExit: the card exists but is not a JSON object (one line, exit 2).
+        CardError: the card exists but is not a JSON object (the card is left as it was).
     """
     path = card_path(model)
     card: dict[str, Any] = {}
@@ -45,9 +50,9 @@ def record(model: Path, key: str, figures: dict[str, Any], command: str) -> Path
         try:
             card = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise SystemExit(f"error: {path}: the model card is not readable JSON ({exc})") from None
+            raise CardError(f"{path}: the model card is not readable JSON ({exc})") from None
         if not isinstance(card, dict):
-            raise SystemExit(f"error: {path}: the model card must be a JSON object, got {type(card).__name__}")
+            raise CardError(f"{path}: the model card must be a JSON object, got {type(card).__name__}")
     measured = card.get("measured")
     if not isinstance(measured, dict):
         measured = {}
@@ -62,3 +67,13 @@ def record(model: Path, key: str, figures: dict[str, Any], command: str) -> Path
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def record_or_exit(model: Path, key: str, figures: dict[str, Any], command: str) -> None:
+    """:func:`record`, saying where on stderr; a card that cannot be read is one line on stderr and exit 2."""
+    try:
+        path = record(model, key, figures, command)
+    except (CardError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    print(f"recorded in {path}", file=sys.stderr)

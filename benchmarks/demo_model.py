@@ -103,12 +103,12 @@ def main() -> None:
         out["real_mpiifacegaze_frame_deg"] = round(real_frame_error(est, real), 2)
     print(json.dumps(out))
     if args.card:
-        from card import record, shown  # benchmarks/card.py
+        from card import record_or_exit, shown  # benchmarks/card.py
 
         figures = {k: v for k, v in out.items() if k != "model"}
         per = "" if args.per_person == 50 else f" --per-person {args.per_person}"
         command = f"python benchmarks/demo_model.py --model {shown(args.model)}{per} --card"
-        print(f"recorded in {record(args.model, 'demo_model', figures, command)}", file=sys.stderr)
+        record_or_exit(args.model, "demo_model", figures, command)
 
 
 if __name__ == "__main__":

@@ -107,14 +107,14 @@ def main() -> None:
     }
     print(json.dumps(summary))
     if args.card:
-        from card import record, shown  # benchmarks/card.py
+        from card import record_or_exit, shown  # benchmarks/card.py
 
         figures = {k: v for k, v in summary.items() if k != "model"}
         seconds = "" if args.seconds == 20.0 else f" --seconds {args.seconds:g}"
         command = (
             f"python benchmarks/track_accuracy.py --model {shown(args.model)} --people {args.people}{seconds} --card"
         )
-        print(f"recorded in {record(args.model, 'track_accuracy', figures, command)}", file=sys.stderr)
+        record_or_exit(args.model, "track_accuracy", figures, command)
 
 
 if __name__ == "__main__":

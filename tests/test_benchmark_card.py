@@ -47,12 +47,24 @@ def test_a_model_without_a_card_gets_one_and_a_broken_card_is_refused_untouched(
     assert json.loads(path.read_text())["measured"]["track_accuracy"]["people"] == 4
     broken = tmp_path / "b.json"
     broken.write_text("{not json")
-    with pytest.raises(SystemExit, match=r"b\.json: the model card is not readable JSON"):
+    with pytest.raises(card.CardError, match=r"b\.json: the model card is not readable JSON"):
         card.record(tmp_path / "b.pt", "demo_model", {}, "c")
     assert broken.read_text() == "{not json"
     (tmp_path / "l.json").write_text("[1, 2]")
-    with pytest.raises(SystemExit, match="must be a JSON object, got list"):
+    with pytest.raises(card.CardError, match="must be a JSON object, got list"):
         card.record(tmp_path / "l.pt", "demo_model", {}, "c")
+
+
+def test_the_scripts_say_a_broken_card_in_one_line_and_exit_2(tmp_path, capsys):
+    card = _card_module()
+    (tmp_path / "b.json").write_text("{not json")
+    with pytest.raises(SystemExit) as exc:
+        card.record_or_exit(tmp_path / "b.pt", "demo_model", {}, "c")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "b.json" in err[0]
+    card.record_or_exit(tmp_path / "g.pt", "demo_model", {"x": 1}, "c")
+    assert capsys.readouterr().err.strip() == f"recorded in {tmp_path / 'g.json'}"
 
 
 def test_a_model_inside_the_repository_is_named_relative_to_it(tmp_path):
