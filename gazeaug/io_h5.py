@@ -558,6 +558,10 @@ class ChunkedColumn:
         # read here, not in the pool's threads (only zlib runs there: h5py's calls take its lock)
         self._dtype = dset.dtype
         self._where = f"{dset.file.filename}: {dset.name}"
+        # the last chunk when it is partial: HDF5 may store it unfiltered (H5D_CHUNK_DONT_FILTER_PARTIAL_CHUNKS,
+        # which h5py does not expose) with a filter mask of 0
+        rows = int(dset.shape[0])
+        self._edge = rows // self.rows_per_chunk if self.rows_per_chunk and rows % self.rows_per_chunk else -1
 
     def _chunk(self, c: int) -> tuple[int, bytes]:
         offset = (c * self.rows_per_chunk,) + (0,) * (len(self._chunk_shape) - 1)
@@ -566,11 +570,13 @@ class ChunkedColumn:
 
     def _inflate(self, item: tuple[int, int, bytes]) -> NDArray[Any]:
         c, mask, raw = item
+        want = int(np.prod(self._chunk_shape)) * self._dtype.itemsize
         try:
             data = raw if mask & 1 else zlib.decompress(raw)  # mask bit 0: the deflate filter was skipped
         except zlib.error as exc:
-            raise GazeAugError(f"{self._where} chunk {c} is damaged ({exc})") from exc
-        want = int(np.prod(self._chunk_shape)) * self._dtype.itemsize
+            if not (c == self._edge and len(raw) == want):  # a partial edge chunk stored unfiltered is read as is
+                raise GazeAugError(f"{self._where} chunk {c} is damaged ({exc})") from exc
+            data = raw
         if len(data) != want:
             raise GazeAugError(f"{self._where} chunk {c} holds {len(data)} bytes, expected {want}")
         return np.frombuffer(data, dtype=self._dtype).reshape(self._chunk_shape)
@@ -651,6 +657,9 @@ class H5TrainingSet:
             n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]
             face_shape = f["face"].shape[1:] if "face" in f else None
+            for key in ("left_eye", "right_eye", "face"):
+                if key in f and f[key].dtype != np.uint8:  # what augment writes and the models read
+                    raise GazeAugError(f"{self.path}: /{key}: expected uint8 RGB patches, got {f[key].dtype}")
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
             self.attrs = _decode_attrs(f.attrs)
             raw_settings = f.attrs.get("settings")

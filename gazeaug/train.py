@@ -93,6 +93,9 @@ AUTO_MIN_EPOCHS = 10
 #: whole log (24 rows at 250k samples: 10417 epochs, 8.9 min on 2 cores), to memorise a set too small
 #: to generalize.
 AUTO_MAX_EPOCHS = 2000
+#: The most samples ``auto_samples`` (``--samples``) may ask for: far beyond any run, and a number every
+#: file that records it (the model, its checkpoint) can hold.
+MAX_AUTO_SAMPLES = 10**12
 
 
 @dataclass(frozen=True)
@@ -156,8 +159,10 @@ class TrainSettings:
             raise GazeAugError(
                 f"batch size: expected an integer >= 1 (or None: fitted to the data), got {self.batch_size!r}"
             )
-        if not (_is_integer(self.auto_samples) and self.auto_samples >= 1):
-            raise GazeAugError(f"auto_samples: expected an integer >= 1, got {self.auto_samples!r}")
+        if not (_is_integer(self.auto_samples) and 1 <= self.auto_samples <= MAX_AUTO_SAMPLES):
+            raise GazeAugError(
+                f"auto_samples: expected an integer from 1 to {MAX_AUTO_SAMPLES:.0e}, got {self.auto_samples!r}"
+            )
         # plain Python numbers: the files record these, and the safe loader refuses numpy scalars
         for name in ("epochs", "batch_size", "auto_samples", "seed"):
             v = getattr(self, name)

@@ -791,3 +791,43 @@ def test_chunked_columns_read_what_h5py_reads(tmp_path):
             ChunkedColumn(f["damaged"], pool).read_runs([(60, 70)])
         with pytest.raises(GazeAugError, match=r"/short chunk 0 holds 100 bytes, expected 5760"):
             ChunkedColumn(f["short"], pool).read_runs([(0, 10)])
+
+
+def test_a_partial_edge_chunk_stored_unfiltered_is_read_as_it_is(tmp_path):
+    # HDF5 may store the last, partial chunk without its filters (H5D_CHUNK_DONT_FILTER_PARTIAL_CHUNKS)
+    # while its filter mask says 0: the reader must take its bytes as they are
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gazeaug.io_h5 import ChunkedColumn
+
+    path = _synthetic_h5(tmp_path / "edge.h5", n=100)
+    with h5py.File(path, "r+") as f:
+        d = f["left_eye"]
+        k = d.chunks[0]
+        assert 100 % k and d.compression == "gzip"
+        want = d[()]
+        edge = np.zeros((k, *d.shape[1:]), np.uint8)
+        edge[: 100 - (100 // k) * k] = want[(100 // k) * k :]
+        d.id.write_direct_chunk(((100 // k) * k, 0, 0, 0), edge.tobytes(), filter_mask=0)
+    with h5py.File(path, "r") as f, ThreadPoolExecutor(2) as pool:
+        col = ChunkedColumn(f["left_eye"], pool)
+        assert col.direct
+        np.testing.assert_array_equal(np.concatenate(col.read_runs([(0, 100)])), want)
+    with h5py.File(path, "r+") as g:  # a chunk that is not the edge and does not inflate is still damaged
+        g["left_eye"].id.write_direct_chunk((0, 0, 0, 0), b"\x00" * 10, filter_mask=0)
+    with h5py.File(path, "r") as f, ThreadPoolExecutor(2) as pool:
+        with pytest.raises(GazeAugError, match="chunk 0 is damaged"):
+            ChunkedColumn(f["left_eye"], pool).read_runs([(0, 10)])
+
+
+def test_patches_other_than_uint8_and_absurd_sample_counts_are_refused(tmp_path):
+    path = _synthetic_h5(tmp_path / "f.h5", n=40)
+    with h5py.File(path, "r+") as f:
+        eyes = f["right_eye"][()].astype(np.float32)
+        del f["right_eye"]
+        f.create_dataset("right_eye", data=eyes)
+    with pytest.raises(GazeAugError, match=r"/right_eye: expected uint8 RGB patches, got float32"):
+        H5TrainingSet(path)
+    TrainSettings(auto_samples=10**12)
+    with pytest.raises(GazeAugError, match="auto_samples: expected an integer from 1 to 1e\\+12"):
+        TrainSettings(auto_samples=10**13)
