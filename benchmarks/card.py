@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import datetime
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
+
+from facemesh.io import atomic_write
 
 
 class CardError(ValueError):
@@ -38,7 +38,7 @@ def shown(path: Path) -> str:
 def record(model: Path, key: str, figures: dict[str, Any], command: str) -> Path:
     """Set ``card["measured"][key]`` to ``figures`` (with the command and today's date); returns the card.
 
-    The card is rewritten whole (a temporary file renamed over it), so an interrupted run
+    The card is rewritten whole (:func:`facemesh.io.atomic_write`), so an interrupted run
     leaves the previous card. A model without a card gets one holding only ``measured``.
 
     Raises:
@@ -58,14 +58,8 @@ def record(model: Path, key: str, figures: dict[str, Any], command: str) -> Path
         measured = {}
     measured[key] = {"command": command, "date": datetime.date.today().isoformat(), **figures}
     card["measured"] = measured
-    fd, tmp = tempfile.mkstemp(prefix=".card-", suffix=".json", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(json.dumps(card, indent=1) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as f:
+        f.write((json.dumps(card, indent=1) + "\n").encode("utf-8"))
     return path
 
 

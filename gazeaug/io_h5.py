@@ -466,7 +466,7 @@ _LABEL_LIMIT_RAD = np.pi * (1 + 1e-6)
 def _check_schema(f: Any, path: Path) -> tuple[int, NDArray[np.float32]]:
     """The checks every read makes; returns the number of rows N and the labels.
 
-    Required keys, the ``complete`` mark, eye patches (N, H, W, 3) alike, labels (N, 2), finite
+    Required keys, the ``complete`` mark, eye patches (N, H, W, 3) uint8 alike, labels (N, 2), finite
     and within [-pi, pi] radians, every required key N rows long. The labels come back as
     (N, 4) float32: head pose (pitch, yaw), gaze (pitch, yaw).
     """
@@ -488,6 +488,9 @@ def _check_schema(f: Any, path: Path) -> tuple[int, NDArray[np.float32]]:
             raise GazeAugError(f"{path}: face patches must be ({n}, H, W, 3), got {face_shape}")
     for k in REQUIRED_KEYS:
         _check_rows(f, path, k, n)
+    for key in ("left_eye", "right_eye", "face"):
+        if key in f and f[key].dtype != np.uint8:  # what augment writes and the models read
+            raise GazeAugError(f"{path}: /{key}: expected uint8 RGB patches, got {f[key].dtype}")
     labels = np.concatenate([f["head_pose"][()], f["gaze"][()]], axis=1)
     bad = ~np.isfinite(labels).all(axis=1)
     if bad.any():
@@ -557,6 +560,7 @@ class ChunkedColumn:
         self._chunk_shape = tuple(int(c) for c in chunks) if chunks is not None else ()
         # read here, not in the pool's threads (only zlib runs there: h5py's calls take its lock)
         self._dtype = dset.dtype
+        self._chunk_bytes = int(np.prod(self._chunk_shape)) * dset.dtype.itemsize
         self._where = f"{dset.file.filename}: {dset.name}"
         # the last chunk when it is partial: HDF5 may store it unfiltered (H5D_CHUNK_DONT_FILTER_PARTIAL_CHUNKS,
         # which h5py does not expose) with a filter mask of 0
@@ -570,7 +574,7 @@ class ChunkedColumn:
 
     def _inflate(self, item: tuple[int, int, bytes]) -> NDArray[Any]:
         c, mask, raw = item
-        want = int(np.prod(self._chunk_shape)) * self._dtype.itemsize
+        want = self._chunk_bytes
         try:
             data = raw if mask & 1 else zlib.decompress(raw)  # mask bit 0: the deflate filter was skipped
         except zlib.error as exc:
@@ -657,9 +661,6 @@ class H5TrainingSet:
             n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]
             face_shape = f["face"].shape[1:] if "face" in f else None
-            for key in ("left_eye", "right_eye", "face"):
-                if key in f and f[key].dtype != np.uint8:  # what augment writes and the models read
-                    raise GazeAugError(f"{self.path}: /{key}: expected uint8 RGB patches, got {f[key].dtype}")
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
             self.attrs = _decode_attrs(f.attrs)
             raw_settings = f.attrs.get("settings")
