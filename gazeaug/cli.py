@@ -1020,6 +1020,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         given=tuple(k for k, v in (("lr", args.lr), ("auto_samples", args.samples)) if v is not None),
         preload=args.preload,
+        keep_unfinished=True,
     )
     print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))
     return 0

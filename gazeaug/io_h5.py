@@ -79,6 +79,7 @@ __all__ = [
     "part_path",
     "read_h5",
     "REQUIRED_KEYS",
+    "PATCH_SAMPLE_ROWS",
 ]
 
 REQUIRED_KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject", "source_index")
@@ -89,6 +90,8 @@ _BLOCK = 2048  # rows read and shuffled at once when streaming batches (a window
 #: rows with faces at most :data:`_FACE_BLOCK_BYTES` of them.
 _FACE_CHUNK_BYTES = 1 << 20
 _FACE_BLOCK_BYTES = 64 << 20
+#: Rows whose patches :attr:`H5TrainingSet.patch_fingerprint` hashes (64 chunks at most: milliseconds).
+PATCH_SAMPLE_ROWS = 64
 
 
 def part_path(path: str | Path) -> Path:
@@ -585,16 +588,30 @@ class ChunkedColumn:
             raise GazeAugError(f"{self._where} chunk {c} holds {len(data)} bytes, expected {want}")
         return np.frombuffer(data, dtype=self._dtype).reshape(self._chunk_shape)
 
+    def _h5py_rows(self, lo: int, hi: int) -> NDArray[Any]:
+        """``dset[lo:hi]`` read by h5py; what it raises on a damaged chunk named by file, dataset and rows."""
+        try:
+            return self.dset[lo:hi]
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise GazeAugError(
+                f"{self._where} rows {lo}-{hi - 1}: cannot be read, the file is damaged ({exc})"
+            ) from exc
+
     def read_runs(self, runs: Sequence[tuple[int, int]]) -> list[NDArray[Any]]:
-        """The rows ``[lo, hi)`` of each run, as arrays (the same as ``dset[lo:hi]`` each)."""
+        """The rows ``[lo, hi)`` of each run, as arrays (the same as ``dset[lo:hi]`` each).
+
+        Raises:
+            GazeAugError: a chunk that cannot be read or inflated (the message names the file,
+                the dataset and the chunk or rows).
+        """
         if not self.direct or any(hi <= lo for lo, hi in runs):
-            return [self.dset[lo:hi] for lo, hi in runs]
+            return [self._h5py_rows(lo, hi) for lo, hi in runs]
         k = self.rows_per_chunk
         wanted = sorted({c for lo, hi in runs for c in range(lo // k, (hi - 1) // k + 1)})
         try:
             raws = [(c, *self._chunk(c)) for c in wanted]  # the stored bytes: fast, under h5py's lock
         except (RuntimeError, OSError, ValueError):  # a chunk never written (h5py gives its fill value)
-            return [self.dset[lo:hi] for lo, hi in runs]
+            return [self._h5py_rows(lo, hi) for lo, hi in runs]
         chunks = dict(zip(wanted, self.pool.map(self._inflate, raws)))
         out = []
         for lo, hi in runs:
@@ -627,6 +644,8 @@ class H5TrainingSet:
         fingerprint: ``"K rows, sha1 HEX"``: the rows in use and a SHA-1 of their labels (head pose
             and gaze, float32 little-endian) and subjects; another file, or the same file with other
             rows, has another (a resumed training compares it).
+        patch_fingerprint: ``"K rows, sampled S, sha1 HEX"``: a SHA-1 of the patches of a sample
+            of the rows in use (read when first asked for; a resumed training compares it too).
 
     Raises:
         GazeAugError: unreadable or damaged file, unfinished run, missing keys, wrong shapes, NaN
@@ -653,6 +672,7 @@ class H5TrainingSet:
         h5py = _import_h5py()
         self.path = Path(path)
         self._fingerprint: str | None = None
+        self._patch_fingerprint: str | None = None
         try:
             f = h5py.File(self.path, "r")
         except OSError as exc:
@@ -690,6 +710,30 @@ class H5TrainingSet:
         if self._fingerprint is None:
             self._fingerprint = _fingerprint(self._labels[self.rows], self.subjects[self.rows])
         return self._fingerprint
+
+    @property
+    def patch_fingerprint(self) -> str:
+        """``"K rows, sampled S, sha1 HEX"``: a SHA-1 of the patches of S rows spread over the K in use.
+
+        The eye patches (and the face patches, when the file has them) of :data:`PATCH_SAMPLE_ROWS`
+        rows (all of them in a smaller set) at even steps through the rows in use, so a file whose
+        images were made anew (another renderer, other settings) with the same labels is told apart
+        without reading every patch; a change confined to rows outside the sample goes unseen.
+        """
+        if self._patch_fingerprint is None:
+            import hashlib
+
+            h5py = _import_h5py()
+            k = len(self.rows)
+            picked = np.unique(self.rows[np.linspace(0, k - 1, min(k, PATCH_SAMPLE_ROWS)).round().astype(np.int64)])
+            h = hashlib.sha1(usedforsecurity=False)
+            with h5py.File(self.path, "r") as f, _reading(self.path):
+                for key in ("left_eye", "right_eye", "face"):
+                    if key in f:
+                        h.update(key.encode("ascii"))
+                        h.update(np.ascontiguousarray(f[key][picked], dtype=np.uint8).tobytes())
+            self._patch_fingerprint = f"{k} rows, sampled {len(picked)}, sha1 {h.hexdigest()}"
+        return self._patch_fingerprint
 
     def __len__(self) -> int:
         return len(self.rows)

@@ -572,9 +572,10 @@ def _data_selection(
 ) -> dict[str, Any]:
     """What a run trains and validates on (a resumed run must use exactly the same).
 
-    The paths, and the fingerprints (:attr:`H5TrainingSet.fingerprint`: row count and a SHA-1 of
-    the rows' labels and subjects) of the training and validation rows, so another file put in
-    the same place is told apart.
+    The paths, and the fingerprints of the training and validation rows
+    (:attr:`H5TrainingSet.fingerprint`: row count and a SHA-1 of the rows' labels and subjects;
+    :attr:`H5TrainingSet.patch_fingerprint`: a SHA-1 of a sample of their patches), so another
+    file put in the same place, or the same labels with images made anew, is told apart.
     """
     return {
         "train_path": str(Path(train_path).resolve()),
@@ -582,7 +583,13 @@ def _data_selection(
         "val_subjects": sorted(set(val_subjects or [])),
         "train_fingerprint": data.fingerprint,
         "val_fingerprint": None if val is None else val.fingerprint,
+        "train_patches": data.patch_fingerprint,
+        "val_patches": None if val is None else val.patch_fingerprint,
     }
+
+
+#: Data-selection keys a checkpoint of an older gazeaug may lack (not compared when it does).
+_LATER_SELECTION_KEYS = ("train_patches", "val_patches")
 
 
 def _recorded_settings(then: dict[str, Any]) -> dict[str, Any]:
@@ -654,6 +661,7 @@ def train(
     progress: bool = True,
     given: Collection[str] = (),
     preload: str = "auto",
+    keep_unfinished: bool = False,
 ) -> list[dict[str, Any]]:
     """Train a model and save it to ``output`` (``.pt``); returns the per-epoch log.
 
@@ -674,9 +682,14 @@ def train(
             there (on the host, at most 16 GiB), else streams them from the file each epoch;
             ``yes`` holds them whatever their size, ``no`` streams them. The batches, and so the
             model, are the same either way: only the speed and the memory differ.
+        keep_unfinished: without ``resume``, refuse to start over where a run that did not finish
+            left its checkpoint (``MODEL.ckpt.pt`` with no ``MODEL.pt``, or newer than it), rather than
+            replace it at the first epoch (``gazeaug train`` sets it: the epochs done are not lost
+            to a forgotten ``--resume``).
 
     Raises:
-        GazeAugError: bad files or settings.
+        GazeAugError: bad files or settings; an unfinished run's checkpoint with ``keep_unfinished``
+            (``remedy="resume"``).
     """
     from facemesh.outputs import output_lock
 
@@ -693,7 +706,31 @@ def train(
         # plain str (numpy strings would land in the files as numpy scalars, which the safe loader refuses)
         val_subjects = [v.decode() if isinstance(v, bytes) else str(v) for v in val_subjects]
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
+        if keep_unfinished and not resume:
+            _refuse_unfinished(out)
         return _train(train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given), preload)
+
+
+def _refuse_unfinished(out: Path) -> None:
+    """Raise when ``out``'s checkpoint was left by a run that did not finish (called under the output's lock).
+
+    A finished run writes its model after its last checkpoint, so a checkpoint with no model, or
+    newer than the model, is a run that stopped before its end.
+    """
+    ckpt = out.with_suffix(".ckpt.pt")
+    try:
+        left = ckpt.stat().st_mtime_ns
+    except FileNotFoundError:
+        return
+    try:
+        finished = out.stat().st_mtime_ns >= left
+    except FileNotFoundError:
+        finished = False
+    if not finished:
+        raise GazeAugError(
+            f"{ckpt}: a run that did not finish left it (no run is writing it now); starting over would replace it",
+            remedy="resume",
+        )
 
 
 def _train(
@@ -716,6 +753,11 @@ def _train(
             raise GazeAugError(f"{ckpt_path}: no checkpoint to resume from")
         ck = _load_plain(ckpt_path, "gazeaug checkpoint")
         if isinstance(ck.get("settings"), dict):
+            then_samples = ck["settings"].get("auto_samples")
+            if s.epochs is not None and _is_integer(then_samples) and 1 <= then_samples <= MAX_AUTO_SAMPLES:
+                # epochs given: auto_samples decides nothing in this run, so it is not compared (the
+                # recorded epochs are); the run keeps the value it recorded
+                s = replace(s, auto_samples=int(then_samples))
             s = _resumed_sizes(s, ck["settings"])  # left to None: the run being resumed decided them
             s = _with_older_defaults(s, _recorded_settings(ck["settings"]), given)
     s = s.fitted(len(data))  # epochs and batch size left to the data size: fixed now, recorded in the files
@@ -793,7 +835,9 @@ def _train(
             raise GazeAugError(
                 f"{ckpt_path}: made by an older gazeaug that did not record its training data's fingerprint; start over"
             )
-        changed = _differences(then, selection)
+        # a checkpoint from before the patches' fingerprint: its labels' fingerprint alone is compared
+        compared = {k: v for k, v in selection.items() if k in then or k not in _LATER_SELECTION_KEYS}
+        changed = _differences(then, compared)
         if changed:
             raise GazeAugError(
                 f"{ckpt_path}: the checkpoint was made with another data selection ({'; '.join(changed)})"

@@ -42,6 +42,7 @@ __all__ = [
     "epoch_batches",
     "memory_available",
     "resident_bytes",
+    "byte_size",
     "check_preload",
     "should_preload",
     "prefetch_batches",
@@ -59,6 +60,14 @@ PRELOAD_MAX_HOST_BYTES = 16 << 30
 PREFETCH = 3
 #: Rows read at once while loading a resident set (file order).
 _LOAD_ROWS = 4096
+
+
+def byte_size(n: int) -> str:
+    """``n`` bytes in words: ``"512 bytes"``, ``"3.4 MiB"``, ``"1.5 GiB"`` (the largest unit under which it is >= 1)."""
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{int(n)} bytes"
 
 
 def resident_bytes(data: H5TrainingSet, face: bool) -> int:
@@ -174,7 +183,7 @@ class ResidentSet:
         k = len(data)
         need = resident_bytes(data, self.face)
         too_large = ResidentSetTooLarge(
-            f"{data.path}: its {k} rows ({need / 2**30:.1f} GiB) do not fit on {device}", remedy="stream"
+            f"{data.path}: its {k} rows ({byte_size(need)}) do not fit on {device}", remedy="stream"
         )
         if device.type != "cuda":
             free = memory_available(device)

@@ -215,13 +215,104 @@ def test_a_run_begun_before_the_defaults_of_2026_11_25_resumes_as_it_began(tmp_p
 
     argv = ["train", str(h5), "-o", str(out), "--resume", "--epochs", "2", "--batch-size", "16", "--quiet"]
     assert main([*argv, "--lr", "0.003"]) == 2
-    assert main([*argv, "--samples", "500000"]) == 2  # today's default given on purpose: another setting
+    # today's default given on purpose is another setting where the epochs are left to it (with --epochs
+    # given it decides nothing and is not compared)
+    assert (
+        main(["train", str(h5), "-o", str(out), "--resume", "--batch-size", "16", "--quiet", "--samples", "500000"])
+        == 2
+    )
     log = train(h5, out, TrainSettings(epochs=2, batch_size=16), resume=True, progress=False)
     assert [r["epoch"] for r in log] == [1, 2]
     made = torch.load(out, weights_only=True)
     assert made["train_settings"]["lr"] == 1e-3 and made["train_settings"]["balance_axes"] is False
     assert made["train_settings"]["auto_samples"] == 250_000
     assert made["loss_weights_pitch_yaw"] == [1.0, 1.0]
+
+
+@torch_needed
+def test_resume_refuses_the_same_labels_with_other_images(tmp_path, monkeypatch):
+    # the labels' fingerprint alone let a set whose patches were made anew resume; the patches' sampled
+    # fingerprint tells it apart, and a checkpoint from before it (no train_patches) resumes as before
+    h5py = pytest.importorskip("h5py")
+    import torch
+
+    from gazeaug.io_h5 import PATCH_SAMPLE_ROWS, H5TrainingSet
+    from gazeaug.train import TrainSettings, train
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
+    before = H5TrainingSet(h5)
+    assert re.fullmatch(r"32 rows, sampled 32, sha1 [0-9a-f]{40}", before.patch_fingerprint)
+    assert PATCH_SAMPLE_ROWS == 64
+    big = synthetic_h5(tmp_path / "big.h5", n=300, seed=0)
+    assert H5TrainingSet(big).patch_fingerprint.startswith("300 rows, sampled 64, ")
+    assert H5TrainingSet(big, exclude_subjects=["b"]).patch_fingerprint.startswith("150 rows, sampled 64, ")
+    out = tmp_path / "m.pt"
+    s = TrainSettings(epochs=2, batch_size=16)
+    _interrupted_after_one_epoch(monkeypatch, h5, out, s)
+    ckpt = out.with_suffix(".ckpt.pt")
+    assert torch.load(ckpt, weights_only=True)["data_selection"]["train_patches"] == before.patch_fingerprint
+    with h5py.File(h5, "r+") as f:  # one pixel of one sampled row changed, the labels untouched
+        eye = f["right_eye"][7]
+        eye[0, 0, 0] ^= 0xFF
+        f["right_eye"][7] = eye
+    assert H5TrainingSet(h5).fingerprint == before.fingerprint
+    with pytest.raises(GazeAugError, match=r"another data selection \(train_patches: '32 rows, sampled 32, sha1 "):
+        train(h5, out, s, resume=True, progress=False)
+    obj = torch.load(ckpt, weights_only=True)
+    for k in ("train_patches", "val_patches"):
+        obj["data_selection"].pop(k)  # as the previous version wrote it: its labels are compared, not its patches
+    torch.save(obj, ckpt)
+    log = train(h5, out, s, resume=True, progress=False)
+    assert [r["epoch"] for r in log] == [1, 2]
+
+
+@torch_needed
+def test_resume_with_epochs_given_does_not_compare_the_samples(tmp_path, monkeypatch):
+    # with --epochs given, --samples decides nothing (the epochs are not fitted), so a resumed run that
+    # gives another --samples is the same run: it goes on, with the value it recorded; without --epochs
+    # another --samples would mean other epochs, and is refused
+    import torch
+
+    from gazeaug.cli import main
+    from gazeaug.train import TrainSettings
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
+    out = tmp_path / "m.pt"
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=2, batch_size=16, auto_samples=1000))
+    argv = ["train", str(h5), "-o", str(out), "--resume", "--quiet"]
+    assert main([*argv, "--samples", "5000"]) == 2  # the epochs left to the samples: 5000 would fit other epochs
+    assert main([*argv, "--epochs", "2", "--batch-size", "16", "--samples", "5000"]) == 0
+    made = torch.load(out, weights_only=True)
+    assert made["train_settings"]["auto_samples"] == 1000 and made["train_settings"]["epochs"] == 2
+    assert [r["epoch"] for r in made["log"]] == [1, 2]
+
+
+@torch_needed
+def test_train_without_resume_keeps_an_unfinished_runs_checkpoint(tmp_path, monkeypatch, capsys):
+    # `gazeaug train` without --resume used to replace an interrupted run's checkpoint at its first epoch
+    from gazeaug.cli import main
+    from gazeaug.train import TrainSettings, train
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32, seed=0)
+    out = tmp_path / "m.pt"
+    ckpt = out.with_suffix(".ckpt.pt")
+    argv = ["train", str(h5), "-o", str(out), "--epochs", "2", "--batch-size", "16", "--quiet"]
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=2, batch_size=16))
+    kept = ckpt.read_bytes()
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(ckpt) in err[0] and "a run that did not finish left it" in err[0]
+    assert err[0].endswith("pass --resume to continue it, or delete it to start over")
+    assert ckpt.read_bytes() == kept and not out.exists()
+    assert main([*argv, "--resume"]) == 0 and out.is_file()
+    # finished: the model is newer than its checkpoint, and running the command again trains anew
+    assert main(argv) == 0
+    # a finished model with a newer, unfinished run's checkpoint beside it: refused too
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=3, batch_size=16))
+    assert main(argv) == 2
+    # the library keeps its own behaviour unless asked (an experiment's folder is its own)
+    assert len(train(h5, out, TrainSettings(epochs=1, batch_size=16), progress=False)) == 1
 
 
 # ---------------------------------------------------------------------------------------------------------------------

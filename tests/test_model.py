@@ -763,6 +763,11 @@ def test_chunked_columns_read_what_h5py_reads(tmp_path):
         bad = f.create_dataset("damaged", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
         bad[...] = rows
         bad.id.write_direct_chunk((64, 0, 0, 0), b"not deflate at all")
+        mangled = f.create_dataset(  # a layout h5py reads (shuffle + gzip), one chunk damaged
+            "mangled", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip", shuffle=True
+        )
+        mangled[...] = rows
+        mangled.id.write_direct_chunk((64, 0, 0, 0), b"not deflate at all")
         short = f.create_dataset("short", shape=rows.shape, dtype=np.uint8, chunks=(64, 6, 5, 3), compression="gzip")
         short[...] = rows
         short.id.write_direct_chunk((0, 0, 0, 0), zlib.compress(bytes(100)))
@@ -791,6 +796,11 @@ def test_chunked_columns_read_what_h5py_reads(tmp_path):
             ChunkedColumn(f["damaged"], pool).read_runs([(60, 70)])
         with pytest.raises(GazeAugError, match=r"/short chunk 0 holds 100 bytes, expected 5760"):
             ChunkedColumn(f["short"], pool).read_runs([(0, 10)])
+        for p in (pool, None):  # h5py's own error, named: the file, the dataset, the rows
+            with pytest.raises(
+                GazeAugError, match=r"layouts\.h5: /mangled rows 60-69: cannot be read, the file is damaged"
+            ):
+                ChunkedColumn(f["mangled"], p).read_runs([(0, 10), (60, 70)])
 
 
 def test_a_partial_edge_chunk_stored_unfiltered_is_read_as_it_is(tmp_path):

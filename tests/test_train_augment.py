@@ -480,7 +480,8 @@ def test_a_set_too_large_for_the_device_says_so_in_one_line(tmp_path, monkeypatc
 
     cpu = torch.device("cpu")
     monkeypatch.setattr(torch, "empty", no_memory)
-    with pytest.raises(td.ResidentSetTooLarge, match=r"t\.h5: its 64 rows \(0\.0 GiB\) do not fit on cpu$") as caught:
+    # 64 rows x (two 60 x 36 x 3 uint8 eyes + four float32 labels + an int64 index) = 64 x 12984 bytes = 811.5 KiB
+    with pytest.raises(td.ResidentSetTooLarge, match=r"t\.h5: its 64 rows \(811\.5 KiB\) do not fit on cpu$") as caught:
         td.ResidentSet(data, cpu)
     line = error_line(caught.value)  # as the command line says it
     assert line.endswith("do not fit on cpu; pass --preload no to stream them from the file instead")
@@ -497,3 +498,12 @@ def test_a_set_too_large_for_the_device_says_so_in_one_line(tmp_path, monkeypatc
     with pytest.raises(td.ResidentSetTooLarge, match="do not fit on cpu"):
         td.hold_rows(data, cpu, False, "yes")
     assert td.hold_rows(data, cpu, False, "auto") is None and td.hold_rows(data, cpu, False, "no") is None
+
+
+def test_byte_sizes_in_words():
+    import gazeaug.train_data as td
+
+    assert td.byte_size(0) == "0 bytes" and td.byte_size(1023) == "1023 bytes"
+    assert td.byte_size(1024) == "1.0 KiB" and td.byte_size(3 * 2**20 + 2**19) == "3.5 MiB"
+    assert td.byte_size(2**30 - 1) == "1024.0 MiB"  # just under a GiB, rounded: the unit is the one it is >= 1 of
+    assert td.byte_size(5 * 2**30) == "5.0 GiB" and td.byte_size(2000 * 2**30) == "2000.0 GiB"
