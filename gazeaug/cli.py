@@ -950,7 +950,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
 
 def _add_train_input_options(p: argparse.ArgumentParser) -> None:
-    """``--no-augment``, ``--input``, ``--no-mirror-average``, ``--face``, ``--no-balance-axes``: training options."""
+    """The training options of ``train`` and ``experiment`` (read by :func:`_train_input_settings`)."""
     p.add_argument(
         "--no-augment",
         action="store_true",
@@ -969,6 +969,14 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the model predicts from the eyes alone; by default its answer is averaged with its answer on the "
         "mirrored eyes (recorded in the model and applied by predict, evaluate, track, export)",
+    )
+    p.add_argument(
+        "--shift-average",
+        type=int,
+        default=3,
+        metavar="PX",
+        help="the model's answer is averaged over its eye patches translated by PX pixels (9 answers; "
+        "0: off; 0 to 8, default 3; recorded in the model and applied by predict, evaluate, track, export)",
     )
     p.add_argument(
         "--face",
@@ -992,6 +1000,7 @@ def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
         "augment": TrainAugment(enabled=not args.no_augment),
         "input_mode": args.input,
         "mirror_average": not args.no_mirror_average,
+        "shift_average_px": args.shift_average,
         "model_options": {"face": True} if args.face else {},
         "balance_axes": not args.no_balance_axes,
     }
@@ -1448,8 +1457,10 @@ def _interrupted(args: argparse.Namespace) -> str:
         if Path(out).exists():
             return f"{out} is complete; its summary files may be missing"
     if args.command == "train" and out is not None:
-        ckpt = Path(out).with_suffix(".ckpt.pt")
-        if ckpt.exists():
+        from .train import unfinished_checkpoint
+
+        ckpt = unfinished_checkpoint(out)  # a finished run's checkpoint beside it is no run to go on with
+        if ckpt is not None:
             return f"kept {ckpt} (the last finished epoch); run the same command with --resume to continue"
     if args.command == "track" and out is not None:
         return f"the outputs in {out} are complete up to the last frame processed"

@@ -15,7 +15,9 @@ The file's ``metadata_props`` say how to feed it (strings; JSON where structured
 :meth:`NormalizationSettings.as_dict` writes it), ``gazeaug.patch_size_wh``,
 ``gazeaug.mirror_average`` (``true`` when the exported module is
 :func:`gazeaug.models.mirror.mirror_averaged`'s: the graph itself averages with the
-mirrored eyes) and ``gazeaug.output`` (what ``gaze`` holds).
+mirrored eyes), ``gazeaug.shift_average_px`` (the translation, pixels, over which the
+graph itself averages, :func:`gazeaug.models.shift.shift_averaged`; 0: none) and
+``gazeaug.output`` (what ``gaze`` holds).
 """
 
 from __future__ import annotations
@@ -87,6 +89,8 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
         # the graph averages with the mirrored eyes itself when this is true (read from the module exported,
         # not from meta, so the file says what the graph does): feed it the plain eyes
         "gazeaug.mirror_average": json.dumps(bool(getattr(model, "mirror_average", False))),
+        # likewise the translations it averages over (0: none)
+        "gazeaug.shift_average_px": json.dumps(_shift_average_px(model)),
         "gazeaug.normalization": json.dumps(norm if isinstance(norm, dict) else NormalizationSettings().as_dict()),
         "gazeaug.patch_size_wh": json.dumps([w, h]),
         "gazeaug.output": "gaze (N, 2) float32: (pitch, yaw) radians in the face-centre normalized frame",
@@ -97,3 +101,13 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     with atomic_write(out) as fh:
         fh.write(proto.SerializeToString())
     return out
+
+
+def _shift_average_px(model: Any) -> int:
+    """The translation a (possibly mirror-wrapped) module averages over, pixels; 0 when none."""
+    while model is not None:
+        px = getattr(model, "shift_average_px", None)
+        if isinstance(px, int):
+            return px
+        model = getattr(model, "net", None)
+    return 0

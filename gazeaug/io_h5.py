@@ -189,7 +189,11 @@ def _differences(what: str, then_json: Any, now_json: str) -> list[str]:
     if not isinstance(then, dict):
         then = {}
     keys = sorted(set(then) | set(now))
-    return [f"{what}.{k}: {then.get(k)!r} then, {now.get(k)!r} now" for k in keys if then.get(k) != now.get(k)]
+
+    def shown(d: dict[str, Any], k: str) -> str:  # a key recorded only when set (with_source, eyes) reads "not set"
+        return repr(d[k]) if k in d else "not set"
+
+    return [f"{what}.{k}: {shown(then, k)} then, {shown(now, k)} now" for k in keys if then.get(k) != now.get(k)]
 
 
 def _import_h5py() -> Any:
@@ -731,7 +735,7 @@ class H5TrainingSet:
                 for key in ("left_eye", "right_eye", "face"):
                     if key in f:
                         h.update(key.encode("ascii"))
-                        h.update(np.ascontiguousarray(f[key][picked], dtype=np.uint8).tobytes())
+                        h.update(np.ascontiguousarray(_sampled_rows(f[key], picked), dtype=np.uint8).tobytes())
             self._patch_fingerprint = f"{k} rows, sampled {len(picked)}, sha1 {h.hexdigest()}"
         return self._patch_fingerprint
 
@@ -909,6 +913,26 @@ def _settings_attr(raw: Any, path: Path) -> dict[str, Any]:
             f"got a JSON {type(value).__name__} ({raw!r:.60})"
         )
     return value
+
+
+def _sampled_rows(dset: Any, rows: NDArray[np.int64]) -> NDArray[Any]:
+    """``dset[rows]`` (rows increasing); a row h5py cannot read named with its file and dataset."""
+    try:
+        return dset[rows]
+    except (OSError, RuntimeError, ValueError) as exc:
+        bad = next((int(r) for r in rows if not _readable(dset, int(r))), None)
+        where = f"row {bad}" if bad is not None else f"rows {int(rows[0])}-{int(rows[-1])}"
+        raise GazeAugError(
+            f"{dset.file.filename}: {dset.name} {where}: cannot be read, the file is damaged ({exc})"
+        ) from exc
+
+
+def _readable(dset: Any, row: int) -> bool:
+    try:
+        dset[row]
+    except (OSError, RuntimeError, ValueError):
+        return False
+    return True
 
 
 def _fingerprint(labels: NDArray[Any], subjects: NDArray[Any]) -> str:

@@ -267,6 +267,26 @@ def test_resume_refuses_the_same_labels_with_other_images(tmp_path, monkeypatch)
 
 
 @torch_needed
+def test_a_damaged_sampled_patch_is_named_by_dataset_and_row(tmp_path, capsys):
+    # the patches' fingerprint reads its sample before any batch: a damaged chunk there is named as the
+    # batches' reader names one (file, dataset, row), not as a bare h5py error
+    h5py = pytest.importorskip("h5py")
+    from gazeaug.cli import main
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=100, seed=0)
+    with h5py.File(h5, "r+") as f:
+        k = f["right_eye"].chunks[0]
+        f["right_eye"].id.write_direct_chunk((k, 0, 0, 0), b"not deflate at all")  # the second chunk
+    capsys.readouterr()
+    assert main(["train", str(h5), "-o", str(tmp_path / "m.pt"), "--epochs", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    # the sample: 64 rows at even steps through the 100; the first of them inside the damaged chunk
+    first = min(r for r in np.linspace(0, 99, 64).round().astype(int) if r >= k)
+    assert f"t.h5: /right_eye row {first}: cannot be read, the file is damaged" in err[0]
+
+
+@torch_needed
 def test_resume_with_epochs_given_does_not_compare_the_samples(tmp_path, monkeypatch):
     # with --epochs given, --samples decides nothing (the epochs are not fitted), so a resumed run that
     # gives another --samples is the same run: it goes on, with the value it recorded; without --epochs
@@ -285,6 +305,18 @@ def test_resume_with_epochs_given_does_not_compare_the_samples(tmp_path, monkeyp
     made = torch.load(out, weights_only=True)
     assert made["train_settings"]["auto_samples"] == 1000 and made["train_settings"]["epochs"] == 2
     assert [r["epoch"] for r in made["log"]] == [1, 2]
+    # left out on resume, --samples is the run's own (as --epochs and --batch-size are)
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=2, batch_size=16, auto_samples=1000))
+    assert main(argv) == 0
+    assert torch.load(out, weights_only=True)["train_settings"]["auto_samples"] == 1000
+    # a checkpoint of a gazeaug that did not record auto_samples (250k then) with --epochs and --samples given
+
+    def as_then(ck):
+        return dict(ck, settings={k: v for k, v in ck["settings"].items() if k != "auto_samples"})
+
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=2, batch_size=16), as_then)
+    assert main([*argv, "--epochs", "2", "--batch-size", "16", "--samples", "1000"]) == 0
+    assert torch.load(out, weights_only=True)["train_settings"]["auto_samples"] == 250_000
 
 
 @torch_needed
@@ -306,13 +338,34 @@ def test_train_without_resume_keeps_an_unfinished_runs_checkpoint(tmp_path, monk
     assert err[0].endswith("pass --resume to continue it, or delete it to start over")
     assert ckpt.read_bytes() == kept and not out.exists()
     assert main([*argv, "--resume"]) == 0 and out.is_file()
-    # finished: the model is newer than its checkpoint, and running the command again trains anew
+    # finished: its checkpoint's epoch is its last, and running the command again trains anew, whatever
+    # the files' dates say (a copy without -p, or touch, makes the checkpoint the newer)
+    os.utime(ckpt, ns=(out.stat().st_mtime_ns + 10**9,) * 2)
     assert main(argv) == 0
     # a finished model with a newer, unfinished run's checkpoint beside it: refused too
     _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=3, batch_size=16))
     assert main(argv) == 2
     # the library keeps its own behaviour unless asked (an experiment's folder is its own)
     assert len(train(h5, out, TrainSettings(epochs=1, batch_size=16), progress=False)) == 1
+    # Ctrl-C before a new run's first epoch ends, a finished run's checkpoint beside it: nothing to resume
+    import gazeaug.train as tr
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    capsys.readouterr()
+    with monkeypatch.context() as m:
+        m.setattr(tr, "_save", stop)
+        assert main([*argv[:-5], "--epochs", "3", "--batch-size", "16", "--quiet"]) == 130
+    err = capsys.readouterr().err
+    assert "--resume" not in err and "nothing was written" in err
+    # and after an epoch, the checkpoint it kept is named, with --resume
+    _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=3, batch_size=16))
+    with monkeypatch.context() as m:
+        m.setattr(tr, "_save", stop)
+        assert main([*argv[:-5], "--epochs", "3", "--batch-size", "16", "--quiet", "--resume"]) == 130
+    err = capsys.readouterr().err
+    assert f"kept {ckpt}" in err and "with --resume to continue" in err
 
 
 # ---------------------------------------------------------------------------------------------------------------------

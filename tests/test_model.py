@@ -382,11 +382,13 @@ def test_onnx_export_matches_pytorch(tmp_path):
     props = {p.key: p.value for p in onnx.load(str(tmp_path / "m.onnx")).metadata_props}
     assert props["gazeaug.input_mode"] == "rgb" and json.loads(props["gazeaug.patch_size_wh"]) == [60, 36]
     assert json.loads(props["gazeaug.mirror_average"]) is True  # the default; the graph holds the averaging
+    assert json.loads(props["gazeaug.shift_average_px"]) == 3  # likewise the translations
     plain = TrainSettings(epochs=1, batch_size=16, mirror_average=False)
     train(data, tmp_path / "p.pt", plain, progress=False)
     assert main(["export", str(tmp_path / "p.pt"), "-o", str(tmp_path / "p.onnx")]) == 0
     props = {p.key: p.value for p in onnx.load(str(tmp_path / "p.onnx")).metadata_props}
     assert json.loads(props["gazeaug.mirror_average"]) is False
+    assert json.loads(props["gazeaug.shift_average_px"]) == 3  # found inside the network when not mirror-wrapped
     assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
     train(data, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=16, input_mode="grey_equalized"), progress=False)
     assert main(["export", str(tmp_path / "g.pt"), "-o", str(tmp_path / "g.onnx")]) == 0
@@ -552,9 +554,9 @@ def test_mirror_averaged_model_is_mirror_equivariant(tmp_path):
 def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
     data = _synthetic_h5(tmp_path / "t.h5", n=32)
     args = ["train", str(data), "--epochs", "1", "--batch-size", "16", "--quiet"]
-    assert main([*args, "-o", str(tmp_path / "plain.pt"), "--no-mirror-average"]) == 0
+    assert main([*args, "-o", str(tmp_path / "plain.pt"), "--no-mirror-average", "--shift-average", "0"]) == 0
     model, meta = load_model(tmp_path / "plain.pt")
-    assert meta["mirror_average"] is False and meta["prediction"] == {"mirror_average": False}
+    assert meta["mirror_average"] is False and meta["prediction"] == {"mirror_average": False, "shift_average_px": 0}
     assert not hasattr(model, "net")  # the network itself
     # a file from before the entry predicts as it always did; a bad entry is refused
     obj = torch.load(tmp_path / "plain.pt", weights_only=True)
@@ -565,6 +567,118 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
     torch.save(obj, tmp_path / "bad.pt")
     with pytest.raises(GazeAugError, match="'prediction': expected"):
         load_model(tmp_path / "bad.pt")
+
+
+# --------------------------------------------------------------------------- shift averaging
+
+
+def _pixel_net(row, col):
+    """A hand-made network: pitch = the left patch's channel 0 at (row, col); yaw = the right patch's there."""
+
+    class Net(torch.nn.Module):
+        def forward(self, left, right, head):
+            return torch.stack([left[:, 0, row, col], right[:, 0, row, col]], dim=1)
+
+    return Net()
+
+
+def test_shift_average_by_hand():
+    from gazeaug.models.shift import shift_averaged, shift_offsets
+
+    assert shift_offsets(0) == ()
+    assert shift_offsets(2)[0] == (0, 0) and len(set(shift_offsets(2))) == 9
+    assert set(shift_offsets(2)) == {(dy, dx) for dy in (-2, 0, 2) for dx in (-2, 0, 2)}
+    # patch value 10 * row + column (5 x 6). Inside, at (2, 2), 1 px: content moved dy down and dx right
+    # puts there the value from (2 - dy, 2 - dx): rows 1, 2, 3 and columns 1, 2, 3 each thrice, mean 22
+    # for the identity; for its square, mean over a, b in {1, 2, 3} of (10 a + b)^2 =
+    # (100 * 14 + 2 * 10 * 6 * 6 / 3 * ... ) computed term by term: sum of (10a+b)^2 = 100 * 3 * 14 + 20 * 6 * 6
+    # + 3 * 14 = 4200 + 720 + 42 = 4962, over 9: 551.333...
+    grid = (10 * torch.arange(5.0)[:, None] + torch.arange(6.0)[None, :]).expand(1, 3, 5, 6)
+    head = torch.zeros(1, 2)
+    got = shift_averaged(_pixel_net(2, 2), 1)(grid, grid**2, head)
+    np.testing.assert_allclose(got.numpy(), [[22.0, 4962 / 9]], rtol=1e-6)
+    # at the corner (0, 0) the translations read outside the patch: filled by reflection (as the training's
+    # translations fill it), the row above row 0 is row 1, so rows {1, 0, 1} and columns {1, 0, 1}:
+    # mean of 10 r + c = 10 * 2/3 + 2/3 = 22/3
+    got = shift_averaged(_pixel_net(0, 0), 1)(grid, grid, head)
+    np.testing.assert_allclose(got.numpy(), [[22 / 3, 22 / 3]], rtol=1e-6)
+    # 2 px at (2, 3): rows {0, 2, 4}, columns {1, 3, 5}: mean 10 * 2 + 3 = 23
+    got = shift_averaged(_pixel_net(2, 3), 2)(grid, grid, head)
+    np.testing.assert_allclose(got.numpy(), [[23.0, 23.0]], rtol=1e-6)
+    with pytest.raises(ValueError, match="px: expected an integer from 1 to 8"):
+        shift_averaged(_pixel_net(0, 0), 9)
+
+
+def test_shift_average_is_recorded_applied_and_checked(tmp_path, capsys):
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    args = ["train", str(data), "--epochs", "1", "--batch-size", "16", "--quiet"]
+    assert main([*args, "-o", str(tmp_path / "d.pt")]) == 0  # the default: 3 px, inside the mirror averaging
+    model, meta = load_model(tmp_path / "d.pt")
+    assert meta["prediction"] == {"mirror_average": True, "shift_average_px": 3} and meta["shift_average_px"] == 3
+    assert type(model.net).__name__ == "ShiftAveraged" and model.net.shift_average_px == 3
+    assert main([*args, "-o", str(tmp_path / "s1.pt"), "--shift-average", "1", "--no-mirror-average"]) == 0
+    model1, meta1 = load_model(tmp_path / "s1.pt")
+    assert type(model1).__name__ == "ShiftAveraged" and meta1["shift_average_px"] == 1
+    # the plain network's answers on the 9 translated patches, averaged, are the model's
+    from gazeaug.models.preprocess import prepare_inputs
+
+    rng = np.random.default_rng(2)
+    left = rng.integers(0, 255, (3, 36, 60, 3), dtype=np.uint8)
+    right = rng.integers(0, 255, (3, 36, 60, 3), dtype=np.uint8)
+    head = rng.uniform(-0.3, 0.3, (3, 2))
+    a, b, c = prepare_inputs(left, right, head)
+    with torch.no_grad():
+        answers = []
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                pad = [np.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="reflect") for x in (left, right)]
+                moved = [p[:, 1 - dy : 1 - dy + 36, 1 - dx : 1 - dx + 60] for p in pad]
+                answers.append(model1.net(*prepare_inputs(moved[0], moved[1], head)).numpy())
+    np.testing.assert_allclose(predict_arrays(model1, left, right, head), np.mean(answers, axis=0), atol=1e-5)
+    # a file from before the entry predicts unshifted; bad entries are refused in one message
+    obj = torch.load(tmp_path / "s1.pt", weights_only=True)
+    obj["prediction"] = {"mirror_average": False}
+    torch.save(obj, tmp_path / "old.pt")
+    assert load_model(tmp_path / "old.pt")[1]["shift_average_px"] == 0
+    for bad, why in (
+        (9, "'prediction': expected"),
+        (-1, "'prediction': expected"),
+        (True, "'prediction': expected"),
+        (2.0, "'prediction': expected"),
+    ):
+        obj["prediction"] = {"mirror_average": False, "shift_average_px": bad}
+        torch.save(obj, tmp_path / "bad.pt")
+        with pytest.raises(GazeAugError, match=why):
+            load_model(tmp_path / "bad.pt")
+    obj["prediction"] = {"mirror_average": False, "shift_average_px": 8}
+    obj["patch_size_wh"] = [8, 8]
+    torch.save(obj, tmp_path / "small.pt")
+    with pytest.raises(GazeAugError, match=r"shift_average_px 8 must be smaller than the patch's sides \[8, 8\]"):
+        load_model(tmp_path / "small.pt")
+    # out of range on the command line: one line, exit 2, nothing written
+    capsys.readouterr()
+    assert main([*args, "-o", str(tmp_path / "x.pt"), "--shift-average", "9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "shift_average_px: expected an integer from 0 to 8 pixels, got 9" in err[0]
+    assert not (tmp_path / "x.pt").exists()
+    # eye patches 4 px on a side take at most 3 px: refused before the training, not by the model's loader after it
+    tiny = tmp_path / "tiny.h5"
+    with h5py.File(data, "r") as f, h5py.File(tiny, "w") as g:
+        for k in f:
+            if k in ("left_eye", "right_eye"):
+                g.create_dataset(k, data=f[k][:, :4, :4])
+            else:
+                f.copy(f[k], g, name=k)
+        for k, v in f.attrs.items():
+            g.attrs[k] = v
+        settings = json.loads(f.attrs["settings"])
+        settings["normalization"]["patch_size_wh"] = [4, 4]
+        g.attrs["settings"] = json.dumps(settings)
+    with pytest.raises(
+        GazeAugError, match=r"shift_average_px: 4 px must be smaller than the eye patches' sides \(4 x 4"
+    ):
+        train(tiny, tmp_path / "y.pt", TrainSettings(epochs=1, batch_size=16, shift_average_px=4), progress=False)
+    assert not (tmp_path / "y.pt").exists()
 
 
 def test_a_model_of_another_signature_or_output_is_refused_before_training(tmp_path, monkeypatch):
