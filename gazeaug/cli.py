@@ -1327,6 +1327,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     normalization = _settings(args)
     if args.face and normalization.face_patch_size_wh is None:
         raise GazeAugError("--face: the model reads a face patch; give its size with --face-patch W H (e.g. 224 224)")
+    TrainSettings(**_train_input_settings(args))  # the training options checked before the sets are made
+    if args.shift_average >= min(normalization.patch_size_wh):
+        w, h = normalization.patch_size_wh
+        raise GazeAugError(
+            f"--shift-average {args.shift_average}: must be smaller than the eye patches' sides ({w} x {h})"
+        )
     eyes = _eyes(args)
     defaults = TrainSettings()
     if args.train is None:

@@ -349,6 +349,13 @@ class ExperimentSettings:
             raise GazeAugError(f"n_boot: expected an integer >= 100, got {self.n_boot!r}")
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise GazeAugError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        side = min(self.normalization.patch_size_wh)
+        if isinstance(self.train, TrainSettings) and self.train.shift_average_px >= side:
+            # refused here, before the sets are made, not by the first training after minutes of work
+            raise GazeAugError(
+                f"shift_average_px: {self.train.shift_average_px} px must be smaller than the eye patches' sides "
+                f"({self.normalization.patch_size_wh[0]} x {self.normalization.patch_size_wh[1]})"
+            )
 
 
 # --------------------------------------------------------------------------- aggregation

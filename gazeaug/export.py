@@ -29,6 +29,7 @@ from typing import Any
 
 from .errors import GazeAugError
 from .models import import_torch, uses_face
+from .models.shift import shift_average_px_of
 from .normalize import NormalizationSettings
 
 __all__ = ["export_onnx"]
@@ -90,7 +91,7 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
         # not from meta, so the file says what the graph does): feed it the plain eyes
         "gazeaug.mirror_average": json.dumps(bool(getattr(model, "mirror_average", False))),
         # likewise the translations it averages over (0: none)
-        "gazeaug.shift_average_px": json.dumps(_shift_average_px(model)),
+        "gazeaug.shift_average_px": json.dumps(shift_average_px_of(model)),
         "gazeaug.normalization": json.dumps(norm if isinstance(norm, dict) else NormalizationSettings().as_dict()),
         "gazeaug.patch_size_wh": json.dumps([w, h]),
         "gazeaug.output": "gaze (N, 2) float32: (pitch, yaw) radians in the face-centre normalized frame",
@@ -101,13 +102,3 @@ def export_onnx(model: Any, meta: dict[str, Any], output: str | Path, opset: int
     with atomic_write(out) as fh:
         fh.write(proto.SerializeToString())
     return out
-
-
-def _shift_average_px(model: Any) -> int:
-    """The translation a (possibly mirror-wrapped) module averages over, pixels; 0 when none."""
-    while model is not None:
-        px = getattr(model, "shift_average_px", None)
-        if isinstance(px, int):
-            return px
-        model = getattr(model, "net", None)
-    return 0

@@ -47,7 +47,7 @@ from .models.preprocess import (
     preprocessing_record,
     set_input_mode,
 )
-from .models.shift import MAX_SHIFT_AVERAGE_PX
+from .models.shift import MAX_SHIFT_AVERAGE_PX, shift_average_px_of
 from .normalize import NormalizationSettings
 from .train_augment import TrainAugment, augment_generator
 from .train_data import check_preload, epoch_batches, hold_rows, prefetch_batches, train_inputs
@@ -137,7 +137,7 @@ class TrainSettings:
             (9 answers; :func:`gazeaug.models.shift.shift_averaged`); 0 turns it off; an integer
             from 0 to :data:`~gazeaug.models.shift.MAX_SHIFT_AVERAGE_PX`, smaller than the patch's
             sides. Default 3 (since 2026-11-28: on 10 models of issue 13's benchmark 0.34 deg
-            lower error on average, 9.70 -> 9.37, at 9 x the network's time; docs/model.md). Recorded like
+            lower error on average, 9.70 -> 9.37, at 9 x the network's rows; docs/model.md). Recorded like
             ``mirror_average`` (``prediction.shift_average_px``) and applied by :func:`load_model`;
             the training is the same either way and its log's errors are the plain network's.
         balance_axes: the L1 loss weighs each axis by the inverse of the training labels' standard
@@ -321,6 +321,12 @@ def predict_arrays(
                 f"face patches: the model was trained on {want[0]} x {want[1]} px ones, "
                 f"got {face.shape[2]} x {face.shape[1]} (normalize them with its face camera)"
             )
+    px = shift_average_px_of(model)
+    if px and min(np.shape(left)[1:3]) <= px:
+        raise GazeAugError(
+            f"eye patches: the model averages over translations of {px} px, so their sides must exceed it, "
+            f"got {np.shape(left)[2]} x {np.shape(left)[1]}"
+        )
     device = next(model.parameters()).device
     out = []
     model.eval()
@@ -719,9 +725,8 @@ def train(
             ``yes`` holds them whatever their size, ``no`` streams them. The batches, and so the
             model, are the same either way: only the speed and the memory differ.
         keep_unfinished: without ``resume``, refuse to start over where a run that did not finish
-            left its checkpoint (``MODEL.ckpt.pt`` with no ``MODEL.pt``, or newer than it), rather than
-            replace it at the first epoch (``gazeaug train`` sets it: the epochs done are not lost
-            to a forgotten ``--resume``).
+            left its checkpoint (:func:`unfinished_checkpoint`), rather than replace it at the first
+            epoch (``gazeaug train`` sets it: the epochs done are not lost to a forgotten ``--resume``).
 
     Raises:
         GazeAugError: bad files or settings; an unfinished run's checkpoint with ``keep_unfinished``
@@ -751,8 +756,10 @@ def unfinished_checkpoint(output: str | Path) -> Path | None:
     """``output``'s checkpoint (``MODEL.ckpt.pt``) when a run that did not finish left it, else None.
 
     Read, not dated (a copy or ``touch`` changes a date): a checkpoint whose epoch is short of the
-    epochs its settings record is unfinished. None when there is no checkpoint, or one that cannot
-    be read as a gazeaug checkpoint (nothing could resume from it).
+    epochs its settings record is unfinished, and so is a checkpoint of every epoch with no model
+    file beside it (the run stopped, or failed, while writing the model: ``--resume`` writes it).
+    None when there is no checkpoint, or one that cannot be read as a gazeaug checkpoint (nothing
+    could resume from it).
     """
     ckpt = Path(output).with_suffix(".ckpt.pt")
     if not ckpt.is_file():
@@ -764,8 +771,9 @@ def unfinished_checkpoint(output: str | Path) -> Path | None:
     epoch: Any = ck.get("epoch")
     settings: Any = ck.get("settings")
     epochs: Any = settings.get("epochs") if isinstance(settings, dict) else None
-    if _is_integer(epoch) and _is_integer(epochs) and 0 <= epoch < epochs:
-        return ckpt
+    if _is_integer(epoch) and _is_integer(epochs) and 0 <= epoch <= epochs:
+        if epoch < epochs or not Path(output).exists():
+            return ckpt
     return None
 
 

@@ -391,6 +391,24 @@ def test_cli_refuses_a_same_rig_test_without_datasets(tmp_path, capsys):
     assert len(err) == 1 and "--test-same-rig goes with --train and --test" in err[0]
 
 
+def test_cli_experiment_refuses_a_shift_average_the_patches_cannot_take_before_any_work(tmp_path, capsys):
+    # refused before the built-in setup simulates its sets (minutes with the default sizes), not at the training
+    from gazeaug.cli import main
+
+    for extra, why in (
+        (
+            ["--patch-size", "6", "6", "--shift-average", "8"],
+            "--shift-average 8: must be smaller than the eye patches' sides (6 x 6)",
+        ),
+        (["--shift-average", "-1"], "shift_average_px: expected an integer from 0 to 8 pixels, got -1"),
+    ):
+        out = tmp_path / "xp"
+        assert main(["experiment", *extra, "-o", str(out), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0], err
+        assert not out.exists()
+
+
 def test_cli_experiment_with_a_missing_dataset_writes_nothing(tmp_path, capsys):
     from gazeaug.cli import main
 

@@ -342,6 +342,11 @@ def test_train_without_resume_keeps_an_unfinished_runs_checkpoint(tmp_path, monk
     # the files' dates say (a copy without -p, or touch, makes the checkpoint the newer)
     os.utime(ckpt, ns=(out.stat().st_mtime_ns + 10**9,) * 2)
     assert main(argv) == 0
+    # every epoch done, the model never written (a full disk at the end, say): unfinished too, and --resume
+    # writes the model
+    out.unlink()
+    assert main(argv) == 2 and not out.exists()
+    assert main([*argv, "--resume"]) == 0 and out.is_file()
     # a finished model with a newer, unfinished run's checkpoint beside it: refused too
     _interrupted_after_one_epoch(monkeypatch, h5, out, TrainSettings(epochs=3, batch_size=16))
     assert main(argv) == 2

@@ -376,6 +376,8 @@ def test_onnx_export_matches_pytorch(tmp_path):
     sess = ort.InferenceSession(str(tmp_path / "m.onnx"))
     got = sess.run(None, {"left_eye": a.numpy(), "right_eye": b.numpy(), "head_pose": c.numpy()})[0]
     np.testing.assert_allclose(got, expected, atol=1e-4)
+    empty = sess.run(None, {"left_eye": a[:0].numpy(), "right_eye": b[:0].numpy(), "head_pose": c[:0].numpy()})[0]
+    assert empty.shape == (0, 2)  # an empty batch through the averaging graph (mirror and shift)
     # the file says how to feed it: the input mode and the normalization the model was trained for
     import onnx
 
@@ -605,8 +607,12 @@ def test_shift_average_by_hand():
     # 2 px at (2, 3): rows {0, 2, 4}, columns {1, 3, 5}: mean 10 * 2 + 3 = 23
     got = shift_averaged(_pixel_net(2, 3), 2)(grid, grid, head)
     np.testing.assert_allclose(got.numpy(), [[23.0, 23.0]], rtol=1e-6)
-    with pytest.raises(ValueError, match="px: expected an integer from 1 to 8"):
+    with pytest.raises(GazeAugError, match="shift_average_px: expected an integer from 0 to 8, got 9"):
         shift_averaged(_pixel_net(0, 0), 9)
+    net = _pixel_net(0, 0)
+    assert shift_averaged(net, 0) is net  # 0: no averaging, the network itself
+    # an empty batch gives an empty answer
+    assert shift_averaged(_pixel_net(2, 2), 1)(grid[:0], grid[:0], head[:0]).shape == (0, 2)
 
 
 def test_shift_average_is_recorded_applied_and_checked(tmp_path, capsys):
@@ -635,6 +641,9 @@ def test_shift_average_is_recorded_applied_and_checked(tmp_path, capsys):
                 moved = [p[:, 1 - dy : 1 - dy + 36, 1 - dx : 1 - dx + 60] for p in pad]
                 answers.append(model1.net(*prepare_inputs(moved[0], moved[1], head)).numpy())
     np.testing.assert_allclose(predict_arrays(model1, left, right, head), np.mean(answers, axis=0), atol=1e-5)
+    # patches no larger than the translation: refused in words, not by the padding's own error
+    with pytest.raises(GazeAugError, match=r"translations of 1 px, so their sides must exceed it, got 1 x 1"):
+        predict_arrays(model1, left[:, :1, :1], right[:, :1, :1], head)
     # a file from before the entry predicts unshifted; bad entries are refused in one message
     obj = torch.load(tmp_path / "s1.pt", weights_only=True)
     obj["prediction"] = {"mirror_average": False}

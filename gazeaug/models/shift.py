@@ -11,7 +11,8 @@ Measured (2026-11-28, issue 13's benchmark, 10 models of earlier runs evaluated 
 evaluate`` on their test sets, 9 new people x 15 in the wheelchair rig; docs/model.md): 3 px
 lowered the mean error by 0.34 deg on average (9.70 -> 9.37; from -0.06 to +0.98, 7 of 10 by
 more than 0.05 deg), r pitch 0.66 -> 0.67 and yaw 0.88 -> 0.89. It costs 9 x the network's time
-per prediction (one frame: 2.2 -> 8.4 ms on one busy CPU thread, with mirror averaging).
+rows per prediction, about 2-4 x its time for one frame (a batch of 18 rows costs less than 9
+batches of 2; docs/model.md, docs/tracking.md).
 
 A model file records it (``prediction.shift_average_px``, set by
 :attr:`gazeaug.train.TrainSettings.shift_average_px`), and :func:`gazeaug.train.load_model`
@@ -23,9 +24,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import GazeAugError
 from . import import_torch
 
-__all__ = ["shift_averaged", "shift_offsets", "MAX_SHIFT_AVERAGE_PX"]
+__all__ = ["shift_averaged", "shift_offsets", "shift_average_px_of", "MAX_SHIFT_AVERAGE_PX"]
 
 #: The largest translation shift averaging takes, pixels (the training translates by up to 16).
 MAX_SHIFT_AVERAGE_PX = 8
@@ -41,6 +43,16 @@ def shift_offsets(px: int) -> tuple[tuple[int, int], ...]:
     return ((0, 0), *((dy, dx) for dy in (-px, 0, px) for dx in (-px, 0, px) if (dy, dx) != (0, 0)))
 
 
+def shift_average_px_of(model: Any) -> int:
+    """The translation ``model`` averages over, pixels (0: none), found through wrappers' ``net``."""
+    while model is not None:
+        px = getattr(model, "shift_average_px", None)
+        if isinstance(px, int) and not isinstance(px, bool):
+            return px
+        model = getattr(model, "net", None)
+    return 0
+
+
 def shift_averaged(model: Any, px: int) -> Any:
     """``model`` (a ``torch.nn.Module`` taking (left, right, head pose)) with shift-averaged predictions.
 
@@ -52,14 +64,19 @@ def shift_averaged(model: Any, px: int) -> Any:
     ``dy`` rows down and ``dx`` columns right; the edge filled by reflection, as the training's
     translations fill it). A model that reads the face patch (:func:`gazeaug.models.uses_face`)
     takes it fourth and is given it untranslated. The wrapped network is its ``net`` attribute
-    (``state_dict`` keys prefixed ``net.``).
+    (``state_dict`` keys prefixed ``net.``). ``px`` 0: ``model`` itself, unwrapped.
 
     Convention: translations are in the patch's pixel grid, rows down, columns right; the same
     offset is applied to both eyes.
+
+    Raises:
+        GazeAugError: ``px`` not an integer from 0 to :data:`MAX_SHIFT_AVERAGE_PX`.
     """
     torch = import_torch()
-    if not (isinstance(px, int) and not isinstance(px, bool) and 1 <= px <= MAX_SHIFT_AVERAGE_PX):
-        raise ValueError(f"px: expected an integer from 1 to {MAX_SHIFT_AVERAGE_PX}, got {px!r}")
+    if not (isinstance(px, int) and not isinstance(px, bool) and 0 <= px <= MAX_SHIFT_AVERAGE_PX):
+        raise GazeAugError(f"shift_average_px: expected an integer from 0 to {MAX_SHIFT_AVERAGE_PX}, got {px!r}")
+    if px == 0:
+        return model
     offsets = shift_offsets(px)
 
     class ShiftAveraged(torch.nn.Module):  # type: ignore[misc, name-defined]
@@ -89,6 +106,11 @@ def shift_averaged(model: Any, px: int) -> Any:
             if face is not None:
                 inputs.append(face.repeat(k, 1, 1, 1).contiguous(memory_format=fast))
             out = self.net(*inputs)
-            return out.reshape(k, n, *out.shape[1:]).mean(dim=0)
+            # the 9 answers summed slice by slice (a reshape to (9, N, 2) exports to an ONNX Reshape
+            # that reads N = 0 as "copy this dimension", so an empty batch would fail there)
+            total = out[:n]
+            for i in range(1, k):
+                total = total + out[i * n : (i + 1) * n]
+            return total / k
 
     return ShiftAveraged(model)
