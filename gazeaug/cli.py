@@ -1327,29 +1327,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     normalization = _settings(args)
     if args.face and normalization.face_patch_size_wh is None:
         raise GazeAugError("--face: the model reads a face patch; give its size with --face-patch W H (e.g. 224 224)")
-    TrainSettings(**_train_input_settings(args))  # the training options checked before the sets are made
-    if args.shift_average >= min(normalization.patch_size_wh):
-        w, h = normalization.patch_size_wh
-        raise GazeAugError(
-            f"--shift-average {args.shift_average}: must be smaller than the eye patches' sides ({w} x {h})"
-        )
-    eyes = _eyes(args)
-    defaults = TrainSettings()
-    if args.train is None:
-        from facemesh.io import load_image_rgb
-
-        defaults = BUILTIN_TRAIN
-        for face in args.faces or []:
-            load_image_rgb(face)  # every photo readable before the simulation starts
-        setup = builtin_setup(
-            args.output,
-            extra_faces=args.faces or [],
-            large=args.large,
-            seed=args.seed,
-            progress=not args.quiet,
-            sizes=None if args.per_face is None else (args.per_face, args.per_face),
-        )
-        args.train, args.test, args.test_same_rig = setup.train, setup.test, setup.test_same_rig
+    defaults = BUILTIN_TRAIN if args.train is None else TrainSettings()
+    # every setting checked (the training's against the patches included) before the built-in sets are made
     settings = ExperimentSettings(
         per_sample=args.per_sample,
         distribution=distribution,
@@ -1365,10 +1344,24 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         seed=args.seed,
         seeds=args.seeds,
         rig=None if args.rig is None else load_rig(args.rig),
-        eyes=eyes,
+        eyes=_eyes(args),
         with_source=args.with_source,
         normalization=normalization,
     )
+    if args.train is None:
+        from facemesh.io import load_image_rgb
+
+        for face in args.faces or []:
+            load_image_rgb(face)  # every photo readable before the simulation starts
+        setup = builtin_setup(
+            args.output,
+            extra_faces=args.faces or [],
+            large=args.large,
+            seed=args.seed,
+            progress=not args.quiet,
+            sizes=None if args.per_face is None else (args.per_face, args.per_face),
+        )
+        args.train, args.test, args.test_same_rig = setup.train, setup.test, setup.test_same_rig
     results = run_experiment(
         args.train,
         args.test,

@@ -596,10 +596,8 @@ class ChunkedColumn:
         """``dset[lo:hi]`` read by h5py; what it raises on a damaged chunk named by file, dataset and rows."""
         try:
             return self.dset[lo:hi]
-        except (OSError, RuntimeError, ValueError) as exc:
-            raise GazeAugError(
-                f"{self._where} rows {lo}-{hi - 1}: cannot be read, the file is damaged ({exc})"
-            ) from exc
+        except _H5PY_READ_ERRORS as exc:
+            raise _unreadable(self.dset, f"rows {lo}-{hi - 1}", exc) from exc
 
     def read_runs(self, runs: Sequence[tuple[int, int]]) -> list[NDArray[Any]]:
         """The rows ``[lo, hi)`` of each run, as arrays (the same as ``dset[lo:hi]`` each).
@@ -614,7 +612,7 @@ class ChunkedColumn:
         wanted = sorted({c for lo, hi in runs for c in range(lo // k, (hi - 1) // k + 1)})
         try:
             raws = [(c, *self._chunk(c)) for c in wanted]  # the stored bytes: fast, under h5py's lock
-        except (RuntimeError, OSError, ValueError):  # a chunk never written (h5py gives its fill value)
+        except _H5PY_READ_ERRORS:  # a chunk never written (h5py gives its fill value)
             return [self._h5py_rows(lo, hi) for lo, hi in runs]
         chunks = dict(zip(wanted, self.pool.map(self._inflate, raws)))
         out = []
@@ -915,22 +913,28 @@ def _settings_attr(raw: Any, path: Path) -> dict[str, Any]:
     return value
 
 
+#: What h5py raises reading a damaged chunk.
+_H5PY_READ_ERRORS = (OSError, RuntimeError, ValueError)
+
+
+def _unreadable(dset: Any, rows: str, exc: BaseException) -> GazeAugError:
+    """The error for ``rows`` (``"rows 0-9"``, ``"row 7"``) of ``dset`` that h5py could not read."""
+    return GazeAugError(f"{dset.file.filename}: {dset.name} {rows}: cannot be read, the file is damaged ({exc})")
+
+
 def _sampled_rows(dset: Any, rows: NDArray[np.int64]) -> NDArray[Any]:
     """``dset[rows]`` (rows increasing); a row h5py cannot read named with its file and dataset."""
     try:
         return dset[rows]
-    except (OSError, RuntimeError, ValueError) as exc:
+    except _H5PY_READ_ERRORS as exc:
         bad = next((int(r) for r in rows if not _readable(dset, int(r))), None)
-        where = f"row {bad}" if bad is not None else f"rows {int(rows[0])}-{int(rows[-1])}"
-        raise GazeAugError(
-            f"{dset.file.filename}: {dset.name} {where}: cannot be read, the file is damaged ({exc})"
-        ) from exc
+        raise _unreadable(dset, f"rows {int(rows[0])}-{int(rows[-1])}" if bad is None else f"row {bad}", exc) from exc
 
 
 def _readable(dset: Any, row: int) -> bool:
     try:
         dset[row]
-    except (OSError, RuntimeError, ValueError):
+    except _H5PY_READ_ERRORS:
         return False
     return True
 

@@ -84,8 +84,10 @@ _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0}
 _OLDER_AUGMENT_DEFAULTS: tuple[tuple[str, Any], ...] = (("shift_px", 2),)
 #: Training defaults that changed, as (field, the default before), handled like
 #: :data:`_OLDER_AUGMENT_DEFAULTS`: a checkpoint begun under the older default resumes with it where
-#: the resuming settings leave the field at today's default. All three changed 2026-11-25 (docs/model.md).
-_OLDER_DEFAULTS: tuple[tuple[str, Any], ...] = (("lr", 1e-3), ("balance_axes", False), ("auto_samples", 250_000))
+#: the resuming settings leave the field at today's default. Both changed 2026-11-25 (docs/model.md), with
+#: ``auto_samples`` (250k before), which a resumed run left at today's default always takes from its
+#: checkpoint (:func:`_train`), whatever the value.
+_OLDER_DEFAULTS: tuple[tuple[str, Any], ...] = (("lr", 1e-3), ("balance_axes", False))
 #: :func:`axis_weights` takes an axis's spread as at least this share of the other's.
 MIN_SPREAD_RATIO = 0.25
 #: The fewest epochs :meth:`TrainSettings.fitted` gives.

@@ -398,7 +398,7 @@ def test_cli_experiment_refuses_a_shift_average_the_patches_cannot_take_before_a
     for extra, why in (
         (
             ["--patch-size", "6", "6", "--shift-average", "8"],
-            "--shift-average 8: must be smaller than the eye patches' sides (6 x 6)",
+            "shift_average_px: 8 px must be smaller than the eye patches' sides (6 x 6)",
         ),
         (["--shift-average", "-1"], "shift_average_px: expected an integer from 0 to 8 pixels, got -1"),
     ):

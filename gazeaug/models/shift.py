@@ -10,7 +10,7 @@ does not move the gaze, so the average keeps the answer and thins out the error.
 Measured (2026-11-28, issue 13's benchmark, 10 models of earlier runs evaluated by ``gazeaug
 evaluate`` on their test sets, 9 new people x 15 in the wheelchair rig; docs/model.md): 3 px
 lowered the mean error by 0.34 deg on average (9.70 -> 9.37; from -0.06 to +0.98, 7 of 10 by
-more than 0.05 deg), r pitch 0.66 -> 0.67 and yaw 0.88 -> 0.89. It costs 9 x the network's time
+more than 0.05 deg), r pitch 0.66 -> 0.67 and yaw 0.88 -> 0.89. It costs 9 x the network's
 rows per prediction, about 2-4 x its time for one frame (a batch of 18 rows costs less than 9
 batches of 2; docs/model.md, docs/tracking.md).
 
