@@ -15,9 +15,11 @@ absl::InitializeLog() ...", ``W0000 ...`` lines). Before mediapipe is
 imported, ``GLOG_minloglevel=2`` and ``TF_CPP_MIN_LOG_LEVEL=2`` are set
 (unless already set: errors still show), and, since some of those lines are
 written straight to descriptor 2, descriptor 2 points to ``/dev/null`` while
-the graph is created and while it processes its first image (then it is
-restored, also when that fails; :func:`facemesh._native.native_stderr_silenced`,
-re-exported here). Pass ``quiet=False`` to see them.
+the graph is created and until it has processed its first face (the landmark
+calculators log when they first project one; in video mode until the run
+after it, when tracking starts). It is restored after each such run, also
+when one fails (:func:`facemesh._native.native_stderr_silenced`, re-exported
+here). Pass ``quiet=False`` to see them.
 """
 
 from __future__ import annotations
@@ -126,13 +128,16 @@ class MediaPipeFaceMesh:
         # calculators in its own threads, which may log (TFLite delegates) after the constructor
         # returned; a gap between two blocks (where another thread may wait for descriptor 2, e.g.
         # an image decoding) would let those lines through.
-        # In video mode the tracking calculators log once more when they first run: the run after
-        # the first face was found. The graph is warm after that run.
+        # The landmark calculators log when they first project a face ("W0000 ...
+        # landmark_projection_calculator.cc ... NORM_RECT"), so a run that found no face leaves
+        # the graph cold. In video mode the tracking calculators log once more when they first
+        # run: the run after the first face was found. The graph is warm after that run.
         with native_stderr_silenced(self.quiet):
             result = self._get_graph().process(img)
-        if self.static_image_mode or self._face_seen:
+        found = bool(result.multi_face_landmarks)
+        if (self.static_image_mode and found) or self._face_seen:
             self._warm = True
-        self._face_seen = bool(result.multi_face_landmarks)
+        self._face_seen = found
         return result
 
     def detect(self, image_rgb: NDArray[np.uint8]) -> list[FaceLandmarks]:
