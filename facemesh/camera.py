@@ -43,6 +43,7 @@ from .types import CameraIntrinsics, InputError
 
 __all__ = [
     "load_camera",
+    "CameraSizeMissing",
     "default_camera",
     "check_calibration",
     "DefaultCameraWarning",
@@ -80,6 +81,14 @@ _MAX_SIDE_PX = 1 << 20
 
 #: Largest rows or cols accepted in a FileStorage matrix (ours are 3 x 3 and at most 1 x 14).
 _MAX_MATRIX_DIM = 1000
+
+
+class CameraSizeMissing(InputError):
+    """A calibration file that gives no image size, read without one (:func:`load_camera`'s ``image_size``).
+
+    Commands that read frames (``gazeaug track``, ``calibrate``) catch it and size the camera by the
+    first frame.
+    """
 
 
 class DefaultCameraWarning(UserWarning):
@@ -136,7 +145,7 @@ def load_camera(path: str | Path, image_size: tuple[int, int] | None = None) -> 
         k, dist, size = _read_filestorage(p)
     size = size or image_size
     if size is None:
-        raise InputError(f"{p}: the file gives no image size; pass the image's size")
+        raise CameraSizeMissing(f"{p}: the file gives no image size; pass the image's size")
     try:
         cam = CameraIntrinsics(matrix=k, distortion=dist, image_size=size, source=str(p))
     except InputError as exc:

@@ -423,7 +423,7 @@ def parse_glb(data: bytes, name: str = "<bytes>") -> tuple[dict[str, Any], bytes
         raise InputError(f"{name}: damaged GLB file (the first chunk is not JSON)")
     try:
         gltf = json.loads(chunks[0][1].decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise InputError(f"{name}: damaged GLB file (JSON chunk does not parse: {exc})") from exc
     if not isinstance(gltf, dict):
         raise InputError(f"{name}: damaged GLB file (JSON chunk is not an object)")

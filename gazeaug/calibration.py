@@ -203,13 +203,13 @@ def load_calibration(path: str | Path, model_sha256: str | None = None) -> Calib
         data = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError as exc:
         raise GazeAugError(f"{p}: no such calibration file") from exc
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise GazeAugError(f"{p}: not a readable calibration file ({exc.__class__.__name__})") from exc
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug calibration file (no '{CALIBRATION_FORMAT}' format mark)")
     try:
         cal = _from_record(data)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise GazeAugError(f"{p}: bad calibration values ({exc})") from exc
     if model_sha256 is not None and cal.model_sha256 != model_sha256:
         raise GazeAugError(

@@ -1114,7 +1114,6 @@ def _model_or_demo(path: Path | None) -> Path:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
-    from facemesh.camera import load_camera
 
     from .errors import GazeAugError
     from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
@@ -1144,7 +1143,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         show=args.show,
     )
     rig = load_rig(args.rig) if args.rig is not None else None
-    camera = load_camera(args.camera) if args.camera is not None else None
+    camera = _frames_camera(args.camera)
     model = _model_or_demo(args.model)
     estimator = load_estimator(model)
     calibration = None
@@ -1166,15 +1165,29 @@ def _cmd_track(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from facemesh.camera import load_camera
+def _frames_camera(path: Path | None) -> Any:
+    """``--camera`` of a command that reads frames: the intrinsics, or the file when it gives no image size.
 
+    A file without a size (MPIIGaze's ``Camera.mat``, a bare OpenCV matrix) is read with the first
+    frame's size by :func:`gazeaug.track.track`; a file with one is checked now, before any work.
+    """
+    from facemesh.camera import CameraSizeMissing, load_camera
+
+    if path is None:
+        return None
+    try:
+        return load_camera(path)
+    except CameraSizeMissing:
+        return Path(path)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration import calibrate
     from .estimator import load_estimator
     from .sampling import load_rig
 
     rig = load_rig(args.rig) if args.rig is not None else None
-    camera = load_camera(args.camera) if args.camera is not None else None
+    camera = _frames_camera(args.camera)
     estimator = load_estimator(_model_or_demo(args.model))
     cal, report = calibrate(
         args.source,
@@ -1442,6 +1455,50 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_file(out, (".json",), what="calibration file")
     elif cmd == "simulate":
         check_output_folder(out, what="dataset folder")
+    _refuse_output_over_input(args)
+
+
+#: Files of a folder source that its reader uses besides the frames (a sequence folder's; gazeaug.sequence).
+_SOURCE_FOLDER_FILES = ("sequence.json", "truth.csv")
+#: The files written beside each command's output file (checked above), which replace files of the same names.
+_BESIDE_OUTPUT = {
+    "augment": (".h5.part", ".summary.json", ".distribution.png"),
+    "normalize-dataset": (".h5.part", ".summary.json", ".distribution.png"),
+    "train": (".ckpt.pt", ".log.csv", ".curves.png"),
+}
+
+
+def _refuse_output_over_input(args: argparse.Namespace) -> None:
+    """Refuse an output file that is one of the command's inputs (``predict photo.png -o photo.png``).
+
+    Every argument naming an existing file is an input; a folder given as the source also holds
+    :data:`_SOURCE_FOLDER_FILES` (``calibrate calib/ -o calib/sequence.json``). Output folders are
+    checked by their commands (``track`` refuses a source among the files it writes).
+    """
+    from .errors import GazeAugError
+
+    out = getattr(args, "output", None)
+    if out is None or args.command in ("evaluate", "experiment", "realism", "track", "simulate"):
+        return
+    outs = [Path(out)] + [Path(out).with_suffix(x) for x in _BESIDE_OUTPUT.get(args.command, ())]
+    inputs: list[Path] = []
+    for key, value in vars(args).items():
+        if key == "output":
+            continue
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if not isinstance(v, (str, Path)) or not str(v):
+                continue
+            p = Path(v)
+            if p.is_file():
+                inputs.append(p)
+            elif p.is_dir() and key == "source":
+                inputs.extend(p / n for n in _SOURCE_FOLDER_FILES if (p / n).is_file())
+    for o in outs:
+        if not o.exists():
+            continue
+        for p in inputs:
+            if o.resolve() == p.resolve():
+                raise GazeAugError(f"{o}: the output would replace the input {p}; choose another -o")
 
 
 def _interrupted(args: argparse.Namespace) -> str:

@@ -176,7 +176,7 @@ def _load_onnx(p: Path) -> GazeEstimator:
         raise GazeAugError(
             f"{p}: the ONNX file lacks gazeaug's metadata ({exc.args[0]}); export it again with `gazeaug export`"
         ) from exc
-    except (ValueError, TypeError, GazeAugError) as exc:
+    except (ValueError, TypeError, OverflowError, RecursionError, GazeAugError) as exc:
         raise GazeAugError(f"{p}: unusable gazeaug metadata in the ONNX file ({exc})") from exc
     w, h = norm.patch_size_wh
     if "face" in names and norm.face_patch_size_wh is None:

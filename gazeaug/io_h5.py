@@ -183,7 +183,7 @@ def _differences(what: str, then_json: Any, now_json: str) -> list[str]:
     """What differs between two JSON objects recorded in a file (``"what.key: THEN then, NOW now"``)."""
     try:
         then = json.loads(then_json) if isinstance(then_json, str) else {}
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         then = {}
     now = json.loads(now_json)
     if not isinstance(then, dict):
@@ -459,7 +459,7 @@ def _decode_attrs(attrs: Mapping[str, Any]) -> dict[str, Any]:
         if isinstance(v, str) and v[:1] in ("[", "{"):
             try:
                 v = json.loads(v)
-            except json.JSONDecodeError:
+            except (json.JSONDecodeError, RecursionError):
                 pass
         out[k] = v
     return out
@@ -900,6 +900,8 @@ def _settings_attr(raw: Any, path: Path) -> dict[str, Any]:
         )
     try:
         value = json.loads(raw)
+    except RecursionError as exc:
+        raise GazeAugError(f"{path}: the 'settings' attribute is JSON nested too deeply to read") from exc
     except json.JSONDecodeError as exc:
         raise GazeAugError(
             f"{path}: the 'settings' attribute is not valid JSON ({exc.msg} at character {exc.pos}; "

@@ -408,7 +408,7 @@ def _shard_matches(path: Path, attrs: dict[str, Any]) -> bool:
                 json.loads(f.attrs.get(k, "null")) == json.loads(json.dumps(attrs[k]))
                 for k in ("settings", "selection", "shard")
             )
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
 
 

@@ -342,7 +342,7 @@ def _sequence_fps(folder: Path) -> float | None:
         return None
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise GazeAugError(f"{p}: not a readable sequence file ({exc.__class__.__name__})") from exc
     fps = data.get("fps") if isinstance(data, dict) else None
     if not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and MIN_FPS <= fps <= MAX_FPS):
@@ -485,7 +485,7 @@ def _check_output_folder(out_dir: Path, source: str) -> None:
 def _written_by_track(path: Path) -> bool:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError):
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
         return False
     return isinstance(data, dict) and data.get("written_by") == "gazeaug track"
 
@@ -514,7 +514,7 @@ class _FrameGaze:
     def __init__(
         self,
         estimator: Any,
-        camera: CameraIntrinsics | None,
+        camera: CameraIntrinsics | Path | None,
         rig: Any,
         settings: TrackSettings,
         timer: _Timer,
@@ -547,8 +547,10 @@ class _FrameGaze:
 
     def camera_for(self, w: int, h: int) -> CameraIntrinsics:
         """The user's camera (checked against the frame size), else per frame size the rig's or the default."""
-        from facemesh.camera import camera_for_image
+        from facemesh.camera import camera_for_image, load_camera
 
+        if isinstance(self.camera, Path):  # a calibration file without an image size: the first frame's
+            self.camera = load_camera(self.camera, image_size=(w, h))
         if self.camera is not None:
             if self.camera.image_size != (w, h):
                 c = self.camera
@@ -672,7 +674,7 @@ def track(
     out_dir: str | os.PathLike[str],
     estimator: Any,
     *,
-    camera: CameraIntrinsics | None = None,
+    camera: CameraIntrinsics | str | Path | None = None,
     rig: Any = None,
     settings: TrackSettings = TrackSettings(),
     progress: bool = True,
@@ -685,8 +687,10 @@ def track(
         source: a video file, a folder of images, or a camera (``0``, ``/dev/video0``).
         out_dir: the output folder (created).
         estimator: a :class:`gazeaug.estimator.GazeEstimator`.
-        camera: the source's intrinsics (checked against the frame size); default: the rig's
-            camera when the frames have the rig's image size, else facemesh's documented default.
+        camera: the source's intrinsics (checked against the frame size), or a calibration file
+            that gives no image size (:class:`facemesh.camera.CameraSizeMissing`), read with the first
+            frame's size; default: the rig's camera when the frames have the rig's image size, else
+            facemesh's documented default.
         rig: a :class:`gazeaug.sampling.Rig` for the point of gaze and selections (its targets and
             planes), or None.
         settings: :class:`TrackSettings`.
@@ -728,7 +732,7 @@ def track(
     counts = dict.fromkeys(
         ("frames", "frames_with_face", "frames_eyes_closed", "unreadable_frames", "failed_frames"), 0
     )
-    work = _FrameGaze(estimator, camera, rig, s, timer, calibration)
+    work = _FrameGaze(estimator, Path(camera) if isinstance(camera, str) else camera, rig, s, timer, calibration)
     selections: list[dict[str, Any]] = []
     latencies: list[float] = []
     cam: CameraIntrinsics | None = None
@@ -809,15 +813,18 @@ def track(
         guard.close()
         if bar is not None:
             bar.close()
-        written = outputs.close(keep=counts["frames"] > 0)  # no frame read: an older run's outputs stay
+        # no frame decoded (a folder of damaged images gives 'unreadable' rows): an older run's outputs stay
+        written = outputs.close(keep=counts["frames"] > counts["unreadable_frames"])
         frames.close()  # stops the decoding thread before the capture is released
         src.close()
         work.detector.close()
         if window is not None:
             _close_window()
-    if counts["frames"] == 0:
+    if counts["frames"] == counts["unreadable_frames"]:
         if interrupted:
             raise KeyboardInterrupt
+        if counts["frames"]:
+            raise GazeAugError(f"{src.name}: none of its {counts['frames']} images could be decoded; nothing written")
         raise GazeAugError(f"{src.name}: no frame could be read (an empty or undecodable video?); nothing written")
     wall = time.perf_counter() - wall0
     n = counts["frames"]

@@ -136,3 +136,36 @@ def test_render_points_only_asset_asks_for_keypoints(tmp_path, capsys, detector)
     assert "give them with --keypoints" in capsys.readouterr().err and not out.exists()
     assert main(["render", str(glb), "--yaw", "0", "--pitch", "20", "--keypoints", "dlib68", "-o", str(out)]) == 0
     assert out.is_file()
+
+
+def test_an_output_that_would_replace_an_input_is_refused(tmp_path, capsys):
+    """predict's picture over its own photo (also through a link), calibrate's file over its targets or
+    over the source folder's sequence.json: one line, exit 2, before any work, the input unchanged."""
+    photo = tmp_path / "p.png"
+    photo.write_bytes(b"my photo")
+    link = tmp_path / "l.png"
+    link.symlink_to(photo)
+    model = tmp_path / "m.pt"
+    model.write_bytes(b"never read")
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    (seq / "sequence.json").write_text('{"fps": 10}')
+    targets = tmp_path / "t.json"
+    targets.write_text("{}")
+    cases = [
+        (["predict", model, photo, "-o", photo], photo, photo),
+        (["predict", model, link, "-o", photo], photo, link),
+        (["calibrate", seq, "-o", seq / "sequence.json"], seq / "sequence.json", seq / "sequence.json"),
+        (["calibrate", seq, "--targets", targets, "-o", targets], targets, targets),
+    ]
+    for argv, out, given in cases:
+        before = out.read_bytes()
+        assert main([str(a) for a in argv]) == 2
+        err = capsys.readouterr().err
+        assert err.strip() == (
+            f"gazeaug {argv[0]}: error: {out}: the output would replace the input {given}; choose another -o"
+        ), err
+        assert out.read_bytes() == before
+    # a new file beside the inputs is not refused by this check (the model is then found unreadable)
+    assert main(["predict", str(model), str(photo), "-o", str(tmp_path / "new.png")]) == 2
+    assert "would replace" not in capsys.readouterr().err

@@ -392,6 +392,21 @@ def test_onnx_export_matches_pytorch(tmp_path):
     assert json.loads(props["gazeaug.mirror_average"]) is False
     assert json.loads(props["gazeaug.shift_average_px"]) == 3  # found inside the network when not mirror-wrapped
     assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
+    # crafted metadata: JSON nested deeper than Python reads, or an integer no float holds
+    from gazeaug.errors import GazeAugError
+    from gazeaug.estimator import load_estimator
+
+    for key, value in (
+        ("gazeaug.normalization", "[" * 100_000 + "]" * 100_000),
+        ("gazeaug.patch_size_wh", "[1e999999, 36]"),
+    ):
+        crafted = onnx.load(str(tmp_path / "p.onnx"))
+        for prop in crafted.metadata_props:
+            if prop.key == key:
+                prop.value = value
+        onnx.save(crafted, str(tmp_path / "crafted.onnx"))
+        with pytest.raises(GazeAugError, match="unusable gazeaug metadata"):
+            load_estimator(tmp_path / "crafted.onnx")
     train(data, tmp_path / "g.pt", TrainSettings(epochs=1, batch_size=16, input_mode="grey_equalized"), progress=False)
     assert main(["export", str(tmp_path / "g.pt"), "-o", str(tmp_path / "g.onnx")]) == 0
     props = {p.key: p.value for p in onnx.load(str(tmp_path / "g.onnx")).metadata_props}

@@ -102,6 +102,7 @@ def test_calibration_file_round_trip_and_refusals(tmp_path):
         ({"offset": [1.0, 0.0]}, "offsets up to"),  # 57 deg
         ({"version": 2}, "version"),
         ({"model_sha256": 12345}, "64 hexadecimal"),
+        ({"offset": [10**400, 0]}, "bad calibration values"),  # an integer no float holds
     ]:
         (tmp_path / "bad.json").write_text(json.dumps({**good, **change}))
         with pytest.raises(GazeAugError, match=message):
@@ -109,6 +110,9 @@ def test_calibration_file_round_trip_and_refusals(tmp_path):
     (tmp_path / "other.json").write_text("[]")
     with pytest.raises(GazeAugError, match="not a gazeaug calibration"):
         load_calibration(tmp_path / "other.json")
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)  # deeper than Python's JSON reader goes
+    with pytest.raises(GazeAugError, match="not a readable calibration file"):
+        load_calibration(tmp_path / "deep.json")
 
 
 def test_sequence_settings_checks():
@@ -286,3 +290,11 @@ def test_calibrate_needs_truth(model, tmp_path, capsys):
     )
     _, err = capsys.readouterr()
     assert code == 2 and "line 2" in err and "teapot" in err
+
+
+def test_a_sequence_file_nested_too_deeply_is_refused_in_words(tmp_path):
+    from gazeaug.track import _sequence_fps
+
+    (tmp_path / "sequence.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(GazeAugError, match="not a readable sequence file"):
+        _sequence_fps(tmp_path)

@@ -344,7 +344,7 @@ def test_track_refuses_a_broken_truth_file(model, faces_dir, tmp_path, capsys):
 
 def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, capsys):
     """A folder holding a user's own gaze.csv or video is refused; the source cannot be an output file;
-    a video without a decodable frame leaves an older run as it was."""
+    a video without a decodable frame, or a folder without one, leaves an older run as it was."""
     import shutil
 
     mine = tmp_path / "mine"
@@ -370,6 +370,15 @@ def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, caps
     else:
         assert code == 2 and ("no frame could be read" in err or "cannot be opened as a video" in err)
         assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
+    # a folder whose images all fail to decode: rows marked unreadable only, so no frame was read either
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    for k in range(3):
+        (junk / f"{k:03d}.jpg").write_bytes(b"not a jpeg" * (k + 1))
+    code, _, err = _run(["track", junk, "-o", run, "--model", model, "--quiet"], capsys)
+    assert code == 2 and "none of its 3 images could be decoded; nothing written" in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
 
 
 def test_track_a_camera_that_stops_delivering(model, faces_dir, tmp_path, monkeypatch, capsys):
@@ -404,3 +413,31 @@ def test_track_a_camera_that_stops_delivering(model, faces_dir, tmp_path, monkey
     assert len(_rows(out / "gaze.csv")) == 5
     times = [float(r["time_s"]) for r in _rows(out / "gaze.csv")]
     assert times == sorted(times)
+
+
+def test_track_a_camera_file_without_an_image_size(model, video, tmp_path, capsys):
+    """A calibration that gives no image size (MPIIGaze's Camera.mat, a bare OpenCV matrix) is read with
+    the first frame's size (predict takes it with the image's); a bad one is still refused in one line."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(video))
+    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    cap.release()
+    cam = tmp_path / "cam.yaml"
+    cam.write_text(
+        "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+        f"   data: [ {w:.1f}, 0., {(w - 1) / 2}, 0., {w:.1f}, {(h - 1) / 2}, 0., 0., 1. ]\n"
+    )
+    out = tmp_path / "o"
+    argv = ["track", video, "-o", out, "--model", model, "--quiet", "--max-frames", 2, "--no-video"]
+    code, stdout, err = _run([*argv, "--camera", cam], capsys)
+    assert code == 0, err
+    assert json.loads(stdout.strip().splitlines()[-1])["camera"] == str(cam)
+    # a principal point far outside the first frame: refused with the frame's size named, nothing written
+    cam.write_text(
+        "%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+        f"   data: [ {w:.1f}, 0., {5.0 * w}, 0., {w:.1f}, {(h - 1) / 2}, 0., 0., 1. ]\n"
+    )
+    code, _, err = _run([*argv, "-o", tmp_path / "o2", "--camera", cam], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and str(cam) in err, err
+    assert not (tmp_path / "o2" / "gaze.csv").exists()

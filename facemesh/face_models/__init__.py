@@ -214,6 +214,8 @@ def _read_obj(p: Path) -> tuple[NDArray[np.float64], NDArray[np.int64] | None, F
                 recorded = FaceKeypoints.from_dict(json.loads(line[len(_KEYPOINTS_COMMENT) :]))
             except json.JSONDecodeError as exc:
                 raise InputError(f"{p}: the key points comment is not valid JSON ({exc.msg})") from exc
+            except RecursionError as exc:
+                raise InputError(f"{p}: the key points comment is JSON nested too deeply to read") from exc
     verts: list[list[float]] = []
     faces: list[list[int]] = []
     for lineno, line in enumerate(text.splitlines(), 1):

@@ -84,6 +84,8 @@ class FolderDataset:
                     row = json.loads(line)
                 except json.JSONDecodeError as exc:
                     raise DatasetError(f"{label_file}, line {lineno}: not valid JSON ({exc.msg})") from exc
+                except RecursionError as exc:
+                    raise DatasetError(f"{label_file}, line {lineno}: JSON nested too deeply to read") from exc
                 if not isinstance(row, dict):
                     raise DatasetError(f"{label_file}, line {lineno}: expected a JSON object")
                 self._check_columns(list(row), f"{label_file}, line {lineno}")
