@@ -84,18 +84,15 @@ class GazeEstimator:
         Returns:
             (N, 2) float64 radians (pitch, yaw), face-centre normalized frame.
         """
-        w, h = self.normalization.patch_size_wh
-        patches = [("left eye", left, (h, w)), ("right eye", right, (h, w))]
+        from .train import check_model_inputs
+
         if not self.uses_face:
             face = None
         elif face is None:
             raise GazeAugError(f"{self.path}: the model reads a normalized face patch as well, and none was given")
-        else:
-            fw, fh = self.normalization.face_patch_size_wh or (0, 0)
-            patches.append(("face", face, (fh, fw)))
-        for name, a, (ph, pw) in patches:
-            if a.ndim != 4 or a.shape[1:] != (ph, pw, 3) or a.dtype != np.uint8:
-                raise GazeAugError(f"{name} patches: expected (N, {ph}, {pw}, 3) uint8, got {a.shape} {a.dtype}")
+        left, right, head_pose, face = check_model_inputs(
+            left, right, head_pose, face, self.normalization.patch_size_wh, self.normalization.face_patch_size_wh
+        )
         if self.kind == "pytorch":
             from .train import predict_arrays
 

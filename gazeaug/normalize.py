@@ -63,8 +63,9 @@ class NormalizationSettings:
     """The normalized camera and patch (recorded in every output).
 
     Attributes:
-        distance_mm: d_n, distance of the normalized camera from the eye (default 600 mm, the paper's).
-        focal_px: f_n, its focal length (default 650 px, the paper's).
+        distance_mm: d_n, distance of the normalized camera from the eye (default 600 mm, the paper's;
+            :attr:`DISTANCE_RANGE_MM`).
+        focal_px: f_n, its focal length (default 650 px, the paper's; :attr:`FOCAL_RANGE_PX`).
         patch_size_wh: eye patch (width, height) in pixels (default (60, 36)): integers from 4 to
             1024 per side (:attr:`PATCH_SIDE_RANGE`; a 224 x 224 face patch fits, a patch is held
             in memory per pose and per eye).
@@ -94,12 +95,18 @@ class NormalizationSettings:
 
     #: Allowed patch width and height, pixels.
     PATCH_SIDE_RANGE: ClassVar[tuple[int, int]] = (4, 1024)
+    #: Allowed normalized distances (the eye's and the face's), mm: beyond, the warp's numbers overflow
+    #: or vanish (a crafted model file's 1e-300 or 1e308 gave a gaze and an overflow warning).
+    DISTANCE_RANGE_MM: ClassVar[tuple[float, float]] = (1.0, 100_000.0)
+    #: Allowed normalized focal lengths (the eye's and the face's), px.
+    FOCAL_RANGE_PX: ClassVar[tuple[float, float]] = (1.0, 1_000_000.0)
 
     def __post_init__(self) -> None:
         for name in ("distance_mm", "focal_px", "face_distance_mm", "face_focal_px"):
             v = getattr(self, name)
-            if not (_is_number(v) and math.isfinite(v) and v > 0):
-                raise GazeAugError(f"normalization {name}: expected a finite number > 0, got {v!r}")
+            lo, hi = self.DISTANCE_RANGE_MM if name.endswith("_mm") else self.FOCAL_RANGE_PX
+            if not (_is_number(v) and math.isfinite(v) and lo <= v <= hi):
+                raise GazeAugError(f"normalization {name}: expected a number from {lo:g} to {hi:g}, got {v!r}")
             object.__setattr__(self, name, float(v))
         object.__setattr__(self, "patch_size_wh", self._checked_size("patch size", self.patch_size_wh))
         if not isinstance(self.antialias, (bool, np.bool_)):

@@ -710,12 +710,20 @@ def track(
 
     Raises:
         GazeAugError: a source that does not open, a camera for another frame size (nothing is
-            written then, and older outputs stay).
+            written then, and older outputs stay), a calibration fitted for another model file.
         KeyboardInterrupt: after the outputs were closed and moved in place (complete up to the last frame).
     """
     from .sequence import read_truth, sequence_accuracy
 
     s = settings
+    if calibration is not None:  # tied to a model file's bytes (gazeaug.calibration.model_digest)
+        from .calibration import model_digest
+
+        if calibration.model_sha256 != model_digest(estimator.path):
+            raise GazeAugError(
+                f"the calibration was fitted for another model (sha256 {calibration.model_sha256[:12]}...) than "
+                f"{estimator.path}: calibrate again with this model"
+            )
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
     if s.folder_fps is not None and src.kind != "folder":

@@ -285,6 +285,49 @@ def _device(name: str) -> Any:
     return torch.device("cpu")
 
 
+def check_model_inputs(
+    left: Any,
+    right: Any,
+    head_pose: Any,
+    face: Any = None,
+    patch_size_wh: tuple[int, int] | None = None,
+    face_patch_size_wh: tuple[int, int] | None = None,
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.float64], NDArray[np.uint8] | None]:
+    """The inputs of a gaze model checked: N eyes, N head poses (and N faces), of the model's sizes.
+
+    Eye and face patches (N, H, W, 3) uint8 RGB, of the given sizes (W, H) where given; head poses
+    (N, 2) finite radians (pitch, yaw), face-centre normalized frame. Returns the arrays (the head
+    poses as float64). Raises :class:`GazeAugError` naming what is wrong, expected against got.
+    """
+
+    def patches(name: str, a: Any, size: tuple[int, int] | None) -> NDArray[np.uint8]:
+        a = np.asarray(a)
+        if a.ndim != 4 or a.shape[3] != 3 or a.dtype != np.uint8:
+            raise GazeAugError(f"{name} patches: expected (N, H, W, 3) uint8 RGB, got {a.shape} {a.dtype}")
+        if size is not None and a.shape[1:3] != (size[1], size[0]):
+            raise GazeAugError(
+                f"{name} patches: the model reads {size[0]} x {size[1]} px ones, got {a.shape[2]} x {a.shape[1]}"
+            )
+        return a
+
+    lefts, rights = patches("left eye", left, patch_size_wh), patches("right eye", right, patch_size_wh)
+    faces = None if face is None else patches("face", face, face_patch_size_wh)
+    n = len(lefts)
+    for name, a in (("right eye", rights), ("face", faces)):
+        if a is not None and len(a) != n:
+            raise GazeAugError(f"{name} patches: expected {n}, one per left eye patch, got {len(a)}")
+    try:
+        pose = np.asarray(head_pose, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise GazeAugError(f"head poses: expected ({n}, 2) numbers, radians, got {exc}") from exc
+    if pose.shape != (n, 2):
+        raise GazeAugError(f"head poses: expected ({n}, 2) radians (pitch, yaw), one per eye patch, got {pose.shape}")
+    if not np.isfinite(pose).all():
+        bad = int((~np.isfinite(pose)).any(axis=1).sum())
+        raise GazeAugError(f"head poses: expected finite numbers, got {bad} row(s) with NaN or infinity")
+    return lefts, rights, pose, faces
+
+
 def predict_arrays(
     model: Any,
     left: NDArray[np.uint8],
@@ -308,21 +351,27 @@ def predict_arrays(
             (:func:`gazeaug.models.uses_face`), ignored by one that does not.
 
     Raises:
-        GazeAugError: a model that reads face patches given none.
+        GazeAugError: a model that reads face patches given none; inputs of other shapes, types or
+            lengths (:func:`check_model_inputs`; a loaded model's patch sizes are checked too); a batch
+            size under 1.
     """
     torch = import_torch()
     mode = input_mode_of(model) if input_mode is None else check_input_mode(input_mode)
+    if not (_is_integer(batch_size) and batch_size >= 1):
+        raise GazeAugError(f"batch size: expected an integer >= 1, got {batch_size!r}")
     if not uses_face(model):
         face = None
     elif face is None:
         raise GazeAugError("the model reads a normalized face patch as well, and none was given")
-    else:
-        want = getattr(model, "face_patch_size_wh", None)  # a loaded model's (see load_model)
-        if want is not None and tuple(face.shape[1:3]) != (want[1], want[0]):
-            raise GazeAugError(
-                f"face patches: the model was trained on {want[0]} x {want[1]} px ones, "
-                f"got {face.shape[2]} x {face.shape[1]} (normalize them with its face camera)"
-            )
+    # a loaded model's sizes (see load_model); a model being trained checks shapes and types only
+    left, right, head_pose, face = check_model_inputs(
+        left,
+        right,
+        head_pose,
+        face,
+        getattr(model, "patch_size_wh", None),
+        getattr(model, "face_patch_size_wh", None),
+    )
     px = shift_average_px_of(model)
     if px and min(np.shape(left)[1:3]) <= px:
         raise GazeAugError(
@@ -545,6 +594,7 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
         model = mirror_averaged(model)
     if uses_face(model):
         model.face_patch_size_wh = normalization.face_patch_size_wh  # predict_arrays checks what it is given
+    model.patch_size_wh = tuple(patch)  # likewise the eye patches' size
     model.to(_device(device)).eval()
     set_input_mode(model, input_mode)  # predict_arrays (evaluate, predict) reads it
     meta = {k: v for k, v in obj.items() if k != "state_dict"}

@@ -378,6 +378,34 @@ def test_onnx_export_matches_pytorch(tmp_path):
     np.testing.assert_allclose(got, expected, atol=1e-4)
     empty = sess.run(None, {"left_eye": a[:0].numpy(), "right_eye": b[:0].numpy(), "head_pose": c[:0].numpy()})[0]
     assert empty.shape == (0, 2)  # an empty batch through the averaging graph (mirror and shift)
+    # wrong inputs: one message naming what is wrong, from predict_arrays and from both estimators alike
+    from gazeaug.estimator import load_estimator
+
+    estimators = [load_estimator(tmp_path / "m.pt"), load_estimator(tmp_path / "m.onnx")]
+    bad = [
+        ((left[:, :, :30], right[:, :, :30], head), r"left eye patches: the model reads 60 x 36 px ones, got 30 x 36"),
+        (
+            (left / 255.0, right, head),
+            r"left eye patches: expected \(N, H, W, 3\) uint8 RGB, got \(5, 36, 60, 3\) float64",
+        ),
+        ((left, right[:4], head), r"right eye patches: expected 5, one per left eye patch, got 4"),
+        (
+            (left, right, head[:, :1]),
+            r"head poses: expected \(5, 2\) radians \(pitch, yaw\), one per eye patch, got \(5, 1\)",
+        ),
+        (
+            (left, right, np.where(np.eye(5, 2) > 0, np.nan, head)),
+            r"head poses: expected finite numbers, got 2 row\(s\)",
+        ),
+        ((left.tolist(), right, head), None),  # a nested list of uint8-range ints is int64: refused as not uint8
+    ]
+    for args, message in bad:
+        for predict in (lambda *x: predict_arrays(model, *x), *(e.predict for e in estimators)):
+            with pytest.raises(GazeAugError, match=message or "uint8"):
+                predict(*args)
+    for size in (0, -1, 2.5):
+        with pytest.raises(GazeAugError, match="batch size: expected an integer >= 1"):
+            predict_arrays(model, left, right, head, batch_size=size)  # type: ignore[arg-type]
     # the file says how to feed it: the input mode and the normalization the model was trained for
     import onnx
 
@@ -392,9 +420,7 @@ def test_onnx_export_matches_pytorch(tmp_path):
     assert json.loads(props["gazeaug.mirror_average"]) is False
     assert json.loads(props["gazeaug.shift_average_px"]) == 3  # found inside the network when not mirror-wrapped
     assert json.loads(props["gazeaug.normalization"])["focal_px"] == 650.0
-    # crafted metadata: JSON nested deeper than Python reads, or an integer no float holds
-    from gazeaug.errors import GazeAugError
-    from gazeaug.estimator import load_estimator
+    # crafted metadata: JSON nested deeper than Python reads, or a patch size of infinity
 
     for key, value in (
         ("gazeaug.normalization", "[" * 100_000 + "]" * 100_000),
@@ -656,7 +682,12 @@ def test_shift_average_is_recorded_applied_and_checked(tmp_path, capsys):
                 moved = [p[:, 1 - dy : 1 - dy + 36, 1 - dx : 1 - dx + 60] for p in pad]
                 answers.append(model1.net(*prepare_inputs(moved[0], moved[1], head)).numpy())
     np.testing.assert_allclose(predict_arrays(model1, left, right, head), np.mean(answers, axis=0), atol=1e-5)
-    # patches no larger than the translation: refused in words, not by the padding's own error
+    # patches of another size than the file's: refused in words
+    with pytest.raises(GazeAugError, match=r"left eye patches: the model reads 60 x 36 px ones, got 1 x 1"):
+        predict_arrays(model1, left[:, :1, :1], right[:, :1, :1], head)
+    # a network of no recorded size (one being trained), patches no larger than the translation: refused
+    # in words, not by the padding's own error
+    del model1.patch_size_wh
     with pytest.raises(GazeAugError, match=r"translations of 1 px, so their sides must exceed it, got 1 x 1"):
         predict_arrays(model1, left[:, :1, :1], right[:, :1, :1], head)
     # a file from before the entry predicts unshifted; bad entries are refused in one message

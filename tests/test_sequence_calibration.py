@@ -254,6 +254,13 @@ def test_track_scores_a_sequence_and_calibrate(model, sequence, tmp_path, capsys
     )
     _, err = capsys.readouterr()
     assert code == 2 and "another model" in err
+    # the library refuses it too (the CLI checks it on loading the file)
+    from gazeaug.estimator import load_estimator
+    from gazeaug.track import track
+
+    with pytest.raises(GazeAugError, match="fitted for another model"):
+        track(sequence, tmp_path / "t4", load_estimator(other), calibration=load_calibration(tmp_path / "u.json"))
+    assert not (tmp_path / "t4").exists()
 
 
 def test_calibrate_needs_truth(model, tmp_path, capsys):
