@@ -436,7 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Writes OUT/gaze.csv (one row per frame), OUT/overlay.mp4, OUT/summary.json, and with --rig "
         "OUT/selections.csv; prints one JSON line at the end. See docs/tracking.md.",
     )
-    tk.add_argument("source", help="a video file, a folder of images (name order), or a camera (0, /dev/video0)")
+    tk.add_argument(
+        "source", help="a video file, a folder of images (name order), one image, or a camera (0, /dev/video0)"
+    )
     tk.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     tk.add_argument(
         "--model",

@@ -195,7 +195,7 @@ class FrameSource:
 
     Attributes:
         name: the source as given.
-        kind: ``video``, ``folder`` or ``camera``.
+        kind: ``video``, ``folder``, ``image`` (one image file, read as a folder of one is) or ``camera``.
         fps: frames per second (a camera's as it reports it; 30 when it does not say).
         frame_count: frames in a video or folder (None for a camera, or a video that does not say).
     """
@@ -208,7 +208,7 @@ class FrameSource:
     _files: list[Path] = field(default_factory=list)
 
     def __iter__(self) -> Iterator[Frame]:
-        if self.kind == "folder":
+        if self.kind in ("folder", "image"):
             return self._folder()
         return self._video()
 
@@ -288,7 +288,7 @@ def _is_camera(spec: str) -> bool:
 
 
 def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -> FrameSource:
-    """Open a video file, a folder of images (sorted by name) or a camera (``0``, ``/dev/video0``).
+    """Open a video file, a folder of images (sorted by name), one image or a camera (``0``, ``/dev/video0``).
 
     Raises:
         GazeAugError: nothing at that path, a folder without images, a video or camera that does
@@ -321,6 +321,8 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
         return FrameSource(name, "folder", float(fps), len(files), None, files)
     if not p.exists():
         raise GazeAugError(f"{p}: no such video, folder or camera")
+    if p.suffix.lower() in IMAGE_SUFFIXES:  # decoded as a folder's images are (and predict's), not by FFmpeg
+        return FrameSource(name, "image", float(folder_fps or 30.0), 1, None, [p])
     cap = cv2.VideoCapture(str(p))
     if not cap.isOpened():
         cap.release()
@@ -726,7 +728,7 @@ def track(
             )
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
-    if s.folder_fps is not None and src.kind != "folder":
+    if s.folder_fps is not None and src.kind not in ("folder", "image"):
         warnings.warn(f"--fps sets a folder's frame rate; the {src.kind}'s own timing is used", stacklevel=2)
     truth = read_truth(src.name, frames=src.frame_count) if src.kind == "folder" else None
     kept: list[dict[str, Any]] = []  # the rows, when a simulated sequence's truth is there to score them
@@ -831,6 +833,8 @@ def track(
     if counts["frames"] == counts["unreadable_frames"]:
         if interrupted:
             raise KeyboardInterrupt
+        if src.kind == "image":
+            raise GazeAugError(f"{src.name}: the image could not be decoded; nothing written")
         if counts["frames"]:
             raise GazeAugError(f"{src.name}: none of its {counts['frames']} images could be decoded; nothing written")
         raise GazeAugError(f"{src.name}: no frame could be read (an empty or undecodable video?); nothing written")

@@ -154,7 +154,9 @@ def test_bad_gaze_and_eyes_behind_the_camera(mpii):
         NormalizationSettings(distance_mm=-1)
     # bounds where the warp's numbers would overflow or vanish (a crafted model file's values)
     for field, value in (("distance_mm", 1e-300), ("distance_mm", 1e308), ("focal_px", 0.5), ("focal_px", 1e7)):
-        with pytest.raises(GazeAugError, match=rf"normalization {field}: expected a number from 1 to (100000|1e\+06), got"):
+        with pytest.raises(
+            GazeAugError, match=rf"normalization {field}: expected a number from 1 to (100000|1e\+06), got"
+        ):
             NormalizationSettings(**{field: value})
     assert NormalizationSettings(distance_mm=1.0, focal_px=1e6).focal_px == 1e6
     with pytest.raises(GazeAugError, match="patch size"):

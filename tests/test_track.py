@@ -441,3 +441,23 @@ def test_track_a_camera_file_without_an_image_size(model, video, tmp_path, capsy
     code, _, err = _run([*argv, "-o", tmp_path / "o2", "--camera", cam], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and str(cam) in err, err
     assert not (tmp_path / "o2" / "gaze.csv").exists()
+
+
+def test_track_one_image_file_as_predict_reads_it(model, faces_dir, tmp_path, capsys):
+    """One image file is a source of one frame, decoded as a folder's images and predict's are (not by
+    FFmpeg, whose JPEG decoding differs): the same gaze as predict; an undecodable one is one line."""
+    photo = face_photo(faces_dir, "astronaut.png", any_face=True)
+    code, stdout, err = _run(["track", photo, "-o", tmp_path / "t", "--model", model, "--quiet", "--no-video"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["kind"] == "image" and summary["frames"] == 1
+    row = _rows(tmp_path / "t" / "gaze.csv")[0]
+    code, stdout, err = _run(["predict", model, photo], capsys)
+    assert code == 0, err
+    pitch, yaw = json.loads(stdout.strip().splitlines()[-1])["gaze_pitchyaw_camera_deg"]
+    assert (float(row["raw_pitch_deg"]), float(row["raw_yaw_deg"])) == pytest.approx((pitch, yaw), abs=2e-3)
+    fake = tmp_path / "fake.jpg"
+    fake.write_text("not an image")
+    code, _, err = _run(["track", fake, "-o", tmp_path / "f", "--model", model, "--quiet"], capsys)
+    assert code == 2 and err.strip().endswith(f"{fake}: the image could not be decoded; nothing written"), err
+    assert not (tmp_path / "f" / "gaze.csv").exists()
