@@ -381,6 +381,7 @@ class _Outputs:
         self.final["video"] = self.dir / "overlay.mp4"
         self.part["video"] = self.dir / ".overlay.part.mp4"
         self._video = cv2.VideoWriter(str(self.part["video"]), cv2.VideoWriter.fourcc(*"mp4v"), fps, size_wh)
+        self._video_size = (int(size_wh[0]), int(size_wh[1]))
         if not self._video.isOpened():
             self._video = None
             self.final.pop("video")
@@ -396,9 +397,15 @@ class _Outputs:
         self._sel.flush()
 
     def frame(self, bgr: NDArray[np.uint8]) -> None:
-        """Queue one overlay frame; a background thread encodes it (OpenCV encodes without the GIL)."""
+        """Queue one overlay frame; a background thread encodes it (OpenCV encodes without the GIL).
+
+        A frame of another size than the video's first (a folder's images may differ) is scaled into
+        it, its aspect kept, the rest black: OpenCV's writer drops such frames without a word.
+        """
         if self._video is None:
             return
+        if (bgr.shape[1], bgr.shape[0]) != self._video_size:
+            bgr = _letterboxed(bgr, self._video_size)
         if self._writer is None:
             import queue
             import threading
@@ -461,6 +468,19 @@ class _Outputs:
                 if str(stale) not in out.values() and stale.is_file():
                     stale.unlink()
         return out
+
+
+def _letterboxed(bgr: NDArray[np.uint8], size_wh: tuple[int, int]) -> NDArray[np.uint8]:
+    """``bgr`` (H, W, 3) uint8 scaled to fit (W', H') = ``size_wh``, centred, its aspect kept, on black."""
+    import cv2
+
+    w, h = size_wh
+    scale = min(w / bgr.shape[1], h / bgr.shape[0])
+    nw, nh = max(1, min(w, round(bgr.shape[1] * scale))), max(1, min(h, round(bgr.shape[0] * scale)))
+    out = np.zeros((h, w, 3), np.uint8)
+    x, y = (w - nw) // 2, (h - nh) // 2
+    out[y : y + nh, x : x + nw] = cv2.resize(bgr, (nw, nh), interpolation=cv2.INTER_AREA)
+    return out
 
 
 def _check_output_folder(out_dir: Path, source: str) -> None:

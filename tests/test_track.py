@@ -461,3 +461,33 @@ def test_track_one_image_file_as_predict_reads_it(model, faces_dir, tmp_path, ca
     code, _, err = _run(["track", fake, "-o", tmp_path / "f", "--model", model, "--quiet"], capsys)
     assert code == 2 and err.strip().endswith(f"{fake}: the image could not be decoded; nothing written"), err
     assert not (tmp_path / "f" / "gaze.csv").exists()
+
+
+def test_track_overlay_keeps_frames_of_another_size(model, faces_dir, tmp_path, capsys):
+    """A folder whose images differ in size: every frame is in overlay.mp4, scaled into the first's size
+    (OpenCV's writer dropped the others without a word)."""
+    import cv2
+
+    photo = cv2.imread(str(face_photo(faces_dir, "astronaut.png", any_face=True)))
+    src = tmp_path / "frames"
+    src.mkdir()
+    for i, scale in enumerate((1.0, 0.75, 1.0, 1.25)):
+        cv2.imwrite(str(src / f"{i:03d}.png"), cv2.resize(photo, None, fx=scale, fy=scale))
+    code, _, err = _run(["track", src, "-o", tmp_path / "t", "--model", model, "--quiet", "--static"], capsys)
+    assert code == 0, err
+    assert len(_rows(tmp_path / "t" / "gaze.csv")) == 4
+    cap = cv2.VideoCapture(str(tmp_path / "t" / "overlay.mp4"))
+    frames = []
+    while True:
+        ok, fr = cap.read()
+        if not ok:
+            break
+        frames.append(fr)
+    cap.release()
+    assert len(frames) == 4 and {f.shape for f in frames} == {photo.shape}
+    # the 0.75 frame scaled up into the first's size (a square in a square: the picture fills it)
+    assert frames[1].astype(int).sum(axis=2)[:, :20].mean() > 10 and frames[1].astype(int).sum(axis=2)[:20].mean() > 10
+    from gazeaug.track import _letterboxed
+
+    wide = _letterboxed(np.full((10, 40, 3), 255, np.uint8), (40, 40))  # a wide frame in a square: bars
+    assert wide[:15].max() == 0 and wide[25:].max() == 0 and wide[16:24].min() == 255
