@@ -301,8 +301,11 @@ def open_source(spec: str | os.PathLike[str], folder_fps: float | None = None) -
     if _is_camera(name):
         if name.isdigit() and int(name) > MAX_CAMERA_INDEX:
             raise GazeAugError(f"camera {name}: expected a camera index from 0 to {MAX_CAMERA_INDEX}")
+        from facemesh._native import native_stderr_silenced
+
         try:
-            cap = cv2.VideoCapture(int(name) if name.isdigit() else name)
+            with native_stderr_silenced():  # OpenCV's own "[ WARN ...] can't open camera by index" lines
+                cap = cv2.VideoCapture(int(name) if name.isdigit() else name)
         except cv2.error as exc:
             raise GazeAugError(f"camera {name}: cannot be opened ({str(exc).strip().splitlines()[-1][:120]})") from exc
         if not cap.isOpened():
@@ -357,6 +360,8 @@ class _Outputs:
 
     def __init__(self, out_dir: Path, columns: tuple[str, ...], with_rig: bool, source: str):
         _check_output_folder(out_dir, source)
+        # the folders this run makes: removed again when it keeps nothing ("nothing written")
+        self._made = [p for p in (out_dir, *out_dir.parents) if not p.exists()]
         out_dir.mkdir(parents=True, exist_ok=True)
         self.dir = out_dir
         self.final: dict[str, Path] = {"gaze": out_dir / "gaze.csv"}
@@ -462,6 +467,12 @@ class _Outputs:
                     out[k] = str(self.final[k])
                 else:
                     part.unlink()
+        if not keep:
+            for folder in self._made:  # innermost first; a folder something else wrote into stays
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
         if keep:  # an older run's outputs that this run did not write would pass for this run's
             for name in OUTPUT_FILES:
                 stale = self.dir / name

@@ -26,6 +26,7 @@ import io
 import json
 import math
 import time
+import warnings
 from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -481,7 +482,9 @@ def _load_plain(path: Path, what: str) -> dict[str, Any]:
     except OSError as exc:  # permissions, a folder on the way we may not enter, an I/O error
         raise GazeAugError(f"{path}: cannot read the {what} file ({exc.strerror or exc.__class__.__name__})") from exc
     try:
-        obj = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # "Detected pickle protocol 4 ...": a foreign file, refused below in words
+            warnings.filterwarnings("ignore", message="Detected pickle protocol")
+            obj = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         lines = [ln.strip() for ln in str(exc).splitlines()]
         globals_ = [ln for ln in lines if "GLOBAL" in ln or "Unsupported global" in ln]

@@ -162,8 +162,8 @@ def test_a_crafted_model_file_is_refused_and_runs_nothing(tmp_path, capsys, samp
 @torch_needed
 @pytest.mark.parametrize(
     "content",
-    [b"", b"PK\x03\x04garbage", b"\x80\x02}q\x00.", os.urandom(300)],
-    ids=["empty", "broken-zip", "empty-dict-pickle", "random"],
+    [b"", b"PK\x03\x04garbage", b"\x80\x02}q\x00.", pickle.dumps({"a": 1}, protocol=4), os.urandom(300)],
+    ids=["empty", "broken-zip", "empty-dict-pickle", "protocol-4-pickle", "random"],  # 4: torch warned about it
 )
 def test_damaged_model_files(tmp_path, capsys, content):
     p = tmp_path / "bad.pt"

@@ -379,6 +379,9 @@ def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, caps
     assert code == 2 and "none of its 3 images could be decoded; nothing written" in err, err
     assert len(err.strip().splitlines()) == 1
     assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
+    # into a new folder: the folders the run made are gone again ("nothing written")
+    code, _, err = _run(["track", junk, "-o", tmp_path / "new" / "sub", "--model", model, "--quiet"], capsys)
+    assert code == 2 and not (tmp_path / "new").exists(), err
 
 
 def test_track_a_camera_that_stops_delivering(model, faces_dir, tmp_path, monkeypatch, capsys):
