@@ -1436,15 +1436,15 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_file(out, (".npz",), what="eye patches file")
     elif cmd == "preview":
         check_output_file(out, (".png",), what="contact sheet")
-        check_output_file(out.with_name(out.stem + "_distribution.png"), what="distribution plot")
+        check_output_file(_beside_output(args)[0], what="distribution plot")
     elif cmd in ("augment", "normalize-dataset"):
         check_output_file(out, (".h5", ".hdf5"), what="training set")
-        for suffix in (".h5.part", ".summary.json", ".distribution.png"):
-            check_output_file(out.with_suffix(suffix), what="file beside the training set")
+        for beside in _beside_output(args):
+            check_output_file(beside, what="file beside the training set")
     elif cmd == "train":
         check_output_file(out, (".pt",), what="model file")
-        for suffix in (".ckpt.pt", ".log.csv", ".curves.png"):
-            check_output_file(out.with_suffix(suffix), what="file beside the model")
+        for beside in _beside_output(args):
+            check_output_file(beside, what="file beside the model")
     elif cmd == "export":
         check_output_file(out, (".onnx",), what="ONNX file")
     elif cmd == "predict":
@@ -1462,12 +1462,20 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 #: Files of a folder source that its reader uses besides the frames (a sequence folder's; gazeaug.sequence).
 _SOURCE_FOLDER_FILES = ("sequence.json", "truth.csv")
-#: The files written beside each command's output file (checked above), which replace files of the same names.
+#: The suffixes of the files written beside each command's output file (it is ``-o`` with its suffix replaced).
 _BESIDE_OUTPUT = {
     "augment": (".h5.part", ".summary.json", ".distribution.png"),
     "normalize-dataset": (".h5.part", ".summary.json", ".distribution.png"),
     "train": (".ckpt.pt", ".log.csv", ".curves.png"),
 }
+
+
+def _beside_output(args: argparse.Namespace) -> list[Path]:
+    """The files a command writes beside its ``-o`` file (``preview``: the distribution plot)."""
+    out = Path(args.output)
+    if args.command == "preview":
+        return [out.with_name(out.stem + "_distribution.png")]
+    return [out.with_suffix(x) for x in _BESIDE_OUTPUT.get(args.command, ())]
 
 
 def _refuse_output_over_input(args: argparse.Namespace) -> None:
@@ -1482,7 +1490,7 @@ def _refuse_output_over_input(args: argparse.Namespace) -> None:
     out = getattr(args, "output", None)
     if out is None or args.command in ("evaluate", "experiment", "realism", "track", "simulate"):
         return
-    outs = [Path(out)] + [Path(out).with_suffix(x) for x in _BESIDE_OUTPUT.get(args.command, ())]
+    outs = [Path(out), *_beside_output(args)]
     inputs: list[Path] = []
     for key, value in vars(args).items():
         if key == "output":
@@ -1491,10 +1499,13 @@ def _refuse_output_over_input(args: argparse.Namespace) -> None:
             if not isinstance(v, (str, Path)) or not str(v):
                 continue
             p = Path(v)
-            if p.is_file():
-                inputs.append(p)
-            elif p.is_dir() and key == "source":
-                inputs.extend(p / n for n in _SOURCE_FOLDER_FILES if (p / n).is_file())
+            try:  # any string argument is tried as a path: a name too long for one is no input
+                if p.is_file():
+                    inputs.append(p)
+                elif p.is_dir() and key == "source":
+                    inputs.extend(p / n for n in _SOURCE_FOLDER_FILES if (p / n).is_file())
+            except OSError:
+                continue
     for o in outs:
         if not o.exists():
             continue

@@ -717,7 +717,7 @@ def track(
     """Track gaze through ``source`` and write the outputs (module docstring) into ``out_dir``.
 
     Args:
-        source: a video file, a folder of images, or a camera (``0``, ``/dev/video0``).
+        source: a video file, a folder of images, one image file, or a camera (``0``, ``/dev/video0``).
         out_dir: the output folder (created).
         estimator: a :class:`gazeaug.estimator.GazeEstimator`.
         camera: the source's intrinsics (checked against the frame size), or a calibration file
@@ -867,7 +867,9 @@ def track(
         if src.kind == "image":
             raise GazeAugError(f"{src.name}: the image could not be decoded; nothing written")
         if counts["frames"]:
-            raise GazeAugError(f"{src.name}: none of its {counts['frames']} images could be decoded; nothing written")
+            raise GazeAugError(
+                f"{src.name}: none of the {counts['frames']} images read could be decoded; nothing written"
+            )
         raise GazeAugError(f"{src.name}: no frame could be read (an empty or undecodable video?); nothing written")
     wall = time.perf_counter() - wall0
     n = counts["frames"]

@@ -597,7 +597,8 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
         model = mirror_averaged(model)
     if uses_face(model):
         model.face_patch_size_wh = normalization.face_patch_size_wh  # predict_arrays checks what it is given
-    model.patch_size_wh = tuple(patch)  # likewise the eye patches' size
+    if tuple(patch) == normalization.patch_size_wh:  # likewise the eye patches' size (files from before
+        model.patch_size_wh = tuple(patch)  # the training checked the two agree may differ: not checked)
     model.to(_device(device)).eval()
     set_input_mode(model, input_mode)  # predict_arrays (evaluate, predict) reads it
     meta = {k: v for k, v in obj.items() if k != "state_dict"}
@@ -878,6 +879,16 @@ def _train(
     n_epochs, batch_size = int(s.epochs or 0), int(s.batch_size or 0)
     # recorded in the model and used by predict and evaluate: checked now, not after the training
     normalization = _normalization(data.settings.get("normalization", {}), data.path, "training set")
+    if normalization.patch_size_wh != tuple(data.patch_size_wh):
+        if "normalization" in data.settings:
+            raise GazeAugError(
+                f"{data.path}: its eye patches are {data.patch_size_wh[0]} x {data.patch_size_wh[1]} px, its recorded "
+                f"normalization makes {normalization.patch_size_wh[0]} x {normalization.patch_size_wh[1]} px ones"
+            )
+        # a set that records no normalization: the defaults, at the size of its patches
+        normalization = NormalizationSettings.from_dict(
+            {**normalization.as_dict(), "patch_size_wh": data.patch_size_wh}
+        )
     if s.shift_average_px >= min(data.patch_size_wh):
         raise GazeAugError(
             f"shift_average_px: {s.shift_average_px} px must be smaller than the eye patches' sides "

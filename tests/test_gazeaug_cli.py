@@ -152,11 +152,14 @@ def test_an_output_that_would_replace_an_input_is_refused(tmp_path, capsys):
     (seq / "sequence.json").write_text('{"fps": 10}')
     targets = tmp_path / "t.json"
     targets.write_text("{}")
+    plot = tmp_path / "me_distribution.png"
+    plot.write_bytes(b"my picture")
     cases = [
         (["predict", model, photo, "-o", photo], photo, photo),
         (["predict", model, link, "-o", photo], photo, link),
         (["calibrate", seq, "-o", seq / "sequence.json"], seq / "sequence.json", seq / "sequence.json"),
         (["calibrate", seq, "--targets", targets, "-o", targets], targets, targets),
+        (["preview", plot, "-o", tmp_path / "me.png"], plot, plot),  # the sheet's plot over its input
     ]
     for argv, out, given in cases:
         before = out.read_bytes()

@@ -1010,3 +1010,29 @@ def test_patches_other_than_uint8_and_absurd_sample_counts_are_refused(tmp_path)
     TrainSettings(auto_samples=10**12)
     with pytest.raises(GazeAugError, match="auto_samples: expected an integer from 1 to 1e\\+12"):
         TrainSettings(auto_samples=10**13)
+
+
+def test_the_patch_size_recorded_agrees_with_the_patches(tmp_path):
+    """A set whose recorded normalization makes other patches than it holds is refused before training;
+    a set that records none trains with the defaults at its patches' size, and the model reads that size."""
+    import h5py
+
+    from gazeaug.io_h5 import H5Writer, Rows, read_h5
+
+    src = read_h5(_synthetic_h5(tmp_path / "t.h5", n=32))
+    arrays = {k: v for k, v in src.items() if k != "attrs"}
+    for side in ("left_eye", "right_eye"):
+        arrays[side] = np.pad(arrays[side], ((0, 0), (2, 2), (2, 2), (0, 0)), mode="edge")  # 64 x 40
+    for name, attrs in (("recorded", {"settings": {"normalization": {"patch_size_wh": [60, 36]}}}), ("none", {})):
+        w = H5Writer(tmp_path / f"{name}.h5", attrs, (64, 40))
+        w.append(Rows(arrays), 31)
+        w.finish()
+    with h5py.File(tmp_path / "none.h5", "a") as f:  # as a user's own set: no settings attribute at all
+        f.attrs.pop("settings", None)
+    with pytest.raises(GazeAugError, match=r"its eye patches are 64 x 40 px, its recorded normalization makes 60 x 36"):
+        train(tmp_path / "recorded.h5", tmp_path / "r.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    assert not (tmp_path / "r.pt").exists()
+    train(tmp_path / "none.h5", tmp_path / "n.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    model, meta = load_model(tmp_path / "n.pt")
+    assert meta["normalization"]["patch_size_wh"] == [64, 40] and model.patch_size_wh == (64, 40)
+    assert predict_arrays(model, arrays["left_eye"], arrays["right_eye"], arrays["head_pose"]).shape == (32, 2)

