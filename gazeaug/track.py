@@ -773,12 +773,17 @@ def track(
     counts = dict.fromkeys(
         ("frames", "frames_with_face", "frames_eyes_closed", "unreadable_frames", "failed_frames"), 0
     )
-    work = _FrameGaze(estimator, Path(camera) if isinstance(camera, str) else camera, rig, s, timer, calibration)
+    try:  # a failure here (the landmark model, the window) leaves no part file and no folder behind
+        work = _FrameGaze(estimator, Path(camera) if isinstance(camera, str) else camera, rig, s, timer, calibration)
+        window = _open_window() if s.show else None
+    except BaseException:
+        outputs.close(keep=False)
+        src.close()
+        raise
     selections: list[dict[str, Any]] = []
     latencies: list[float] = []
     cam: CameraIntrinsics | None = None
     interrupted = False
-    window = _open_window() if s.show else None
     bar = None
     if progress:
         from tqdm import tqdm

@@ -497,3 +497,18 @@ def test_track_overlay_keeps_frames_of_another_size(model, faces_dir, tmp_path, 
 
     wide = _letterboxed(np.full((10, 40, 3), 255, np.uint8), (40, 40))  # a wide frame in a square: bars
     assert wide[:15].max() == 0 and wide[25:].max() == 0 and wide[16:24].min() == 255
+
+
+def test_track_leaves_nothing_when_the_frame_work_cannot_start(model, video, tmp_path, monkeypatch):
+    """A failure after the output files were opened but before the first frame (the landmark model, the
+    window): no part file, no folder the run made."""
+    import gazeaug.track as track_mod
+    from gazeaug.estimator import load_estimator
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no landmark model")
+
+    monkeypatch.setattr(track_mod, "_FrameGaze", broken)
+    with pytest.raises(RuntimeError, match="no landmark model"):
+        track_mod.track(video, tmp_path / "new" / "o", load_estimator(model))
+    assert not (tmp_path / "new").exists()
