@@ -1116,7 +1116,6 @@ def _model_or_demo(path: Path | None) -> Path:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
-
     from .errors import GazeAugError
     from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
     from .track import MAX_FPS, MIN_FPS
@@ -1532,6 +1531,8 @@ def _interrupted(args: argparse.Namespace) -> str:
         if ckpt is not None:
             return f"kept {ckpt} (the last finished epoch); run the same command with --resume to continue"
     if args.command == "track" and out is not None:
+        if not (Path(out) / "summary.json").is_file():  # stopped before a frame was decoded: nothing kept
+            return "nothing was written (outputs are written whole or not at all)"
         return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"

@@ -512,3 +512,16 @@ def test_track_leaves_nothing_when_the_frame_work_cannot_start(model, video, tmp
     with pytest.raises(RuntimeError, match="no landmark model"):
         track_mod.track(video, tmp_path / "new" / "o", load_estimator(model))
     assert not (tmp_path / "new").exists()
+
+
+def test_ctrl_c_message_says_what_track_kept(tmp_path):
+    """Ctrl-C before a frame was decoded keeps nothing (the folder made is gone): the message says so."""
+    import argparse
+
+    from gazeaug.cli import _interrupted
+
+    args = argparse.Namespace(command="track", output=tmp_path / "o")
+    assert _interrupted(args) == "nothing was written (outputs are written whole or not at all)"
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "summary.json").write_text("{}")
+    assert _interrupted(args) == f"the outputs in {tmp_path / 'o'} are complete up to the last frame processed"
