@@ -1530,9 +1530,8 @@ def _interrupted(args: argparse.Namespace) -> str:
         ckpt = unfinished_checkpoint(out)  # a finished run's checkpoint beside it is no run to go on with
         if ckpt is not None:
             return f"kept {ckpt} (the last finished epoch); run the same command with --resume to continue"
-    if args.command == "track" and out is not None:
-        if not (Path(out) / "summary.json").is_file():  # stopped before a frame was decoded: nothing kept
-            return "nothing was written (outputs are written whole or not at all)"
+    # track keeps a summary.json with its outputs; stopped before a frame was decoded, it kept nothing
+    if args.command == "track" and out is not None and (Path(out) / "summary.json").is_file():
         return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"
