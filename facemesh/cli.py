@@ -358,6 +358,7 @@ def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
     import cv2
 
     from .conventions import rotation_to_head_pitchyaw
+    from .draw import put_label
     from .pose import project_points
     from .render import RaycastScene
 
@@ -389,8 +390,8 @@ def _preview(image: np.ndarray, mesh: Any) -> np.ndarray:
         pts = np.round(px[[a, b, c]]).astype(np.int32)
         cv2.polylines(left, [pts], True, (40, 220, 255), thickness, cv2.LINE_AA)
     label = f"pitch {math.degrees(pitch):+.1f}  yaw {math.degrees(yaw):+.1f} deg"
-    cv2.putText(left, label, (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
-    cv2.putText(right, "turned frontal", (5, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    put_label(left, label, (5, 20))
+    put_label(right, "turned frontal", (5, 20))
     return np.concatenate([left, right], axis=1)
 
 

@@ -1045,6 +1045,7 @@ def _overlay(
     """
     import cv2
 
+    from facemesh.draw import put_label
     from facemesh.pose import project_points
 
     pic = bgr  # drawn on in place: the decoded frame is not used after this
@@ -1062,30 +1063,19 @@ def _overlay(
 
         for name, (u, v), rad in marks:
             cv2.circle(pic, (u, v), rad, colour(name), th, cv2.LINE_AA)
-            cv2.putText(pic, name, (u + 4, v - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4 * th, colour(name), th, cv2.LINE_AA)
+            put_label(pic, name, (u + 4, v - 4), 0.4 * th, colour(name), th)
         # the targets by name, bottom right (most lie outside a camera that looks up at the face)
         y = h - 12
         for tg in reversed(rig.targets):
             (tw, _), _ = cv2.getTextSize(tg.name, cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, th)
-            cv2.putText(
-                pic, tg.name, (w - tw - 10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, colour(tg.name), th, cv2.LINE_AA
-            )
+            put_label(pic, tg.name, (w - tw - 10, y), 0.5 * th, colour(tg.name), th)
             y -= int(22 * th)
         if selector.current is not None and status == "ok":
             p = selector.progress(t_s)
             cv2.rectangle(pic, (10, h - 20), (10 + int(150 * p), h - 10), (0, 200, 255), -1)
             cv2.rectangle(pic, (10, h - 20), (160, h - 10), (200, 200, 200), 1)
         if last_sel is not None and t_s - last_sel[1] < 1.0:
-            cv2.putText(
-                pic,
-                f"selected: {last_sel[0]}",
-                (10, 50),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.6 * th,
-                (0, 220, 0),
-                th,
-                cv2.LINE_AA,
-            )
+            put_label(pic, f"selected: {last_sel[0]}", (10, 50), 0.6 * th, (0, 220, 0), th)
     if drawn is not None:
         points_px, origin = drawn
         x0, y0 = points_px.min(axis=0)
@@ -1104,7 +1094,5 @@ def _overlay(
                     cv2.LINE_AA,
                     tipLength=0.15,
                 )
-    cv2.putText(
-        pic, f"{row['frame']}  {status}", (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.5 * th, (255, 255, 255), th, cv2.LINE_AA
-    )
+    put_label(pic, f"{row['frame']}  {status}", (10, 22), 0.5 * th, (255, 255, 255), th)
     return pic
