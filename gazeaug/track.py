@@ -898,7 +898,7 @@ def track(
         "calibration": calibration.kind if calibration is not None else None,
         "rig": rig.name if with_rig else None,
         "selections": selections if with_rig else None,
-        "outputs": written,
+        "outputs": {**written, "summary": str(Path(out_dir) / "summary.json")},
         "interrupted": interrupted,
     }
     if truth is not None and rig is not None and kept:
@@ -915,7 +915,6 @@ def track(
 
     with atomic_write(Path(out_dir) / "summary.json") as fh:
         fh.write(json.dumps(summary, indent=1).encode("utf-8"))
-    summary["outputs"]["summary"] = str(Path(out_dir) / "summary.json")
     if interrupted:
         raise KeyboardInterrupt
     return summary

@@ -202,6 +202,8 @@ def test_track_folder_with_a_corrupt_frame_and_closed_eyes(model, faces_dir, tmp
         assert rows[4]["status"] == "eyes_closed" and rows[4]["face_found"] == "1" and not rows[4]["gaze_x"]
         assert float(rows[4]["openness"]) < 0.6 * float(rows[3]["openness"])
     assert "video" not in summary["outputs"] and not (out / "overlay.mp4").exists()
+    kept = json.loads((out / "summary.json").read_text())  # the file lists itself, as the printed line does
+    assert kept["outputs"] == summary["outputs"] and kept["outputs"]["summary"] == str(out / "summary.json")
 
 
 def test_track_ctrl_c_keeps_complete_files(model, video, tmp_path, monkeypatch):
