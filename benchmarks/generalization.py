@@ -133,6 +133,14 @@ def run() -> None:
         help="the plain L1 loss (TrainSettings.balance_axes False, the default before 2026-11-25)",
     )
     ap.add_argument("--no-vary", action="store_true", help="no identity draws (the simulator before identities)")
+    ap.add_argument(
+        "--texture-mix",
+        type=float,
+        default=0.0,
+        metavar="SHARE",
+        help="share of the training identities whose skin mixes another training photo's (SimSettings."
+        "texture_mix_share; the test people are simulated without it; default 0)",
+    )
     ap.add_argument("--workers", type=int, default=2)
     _add_normalization_options(ap)  # --distance, --focal, --patch-size, --no-antialias, --face-patch, as gazeaug's
     ap.add_argument(
@@ -157,6 +165,8 @@ def run() -> None:
     for name in ("per_face", "identities", "test_per_person", "per_sample", "seeds"):
         if getattr(args, name) < 1:  # before anything is simulated
             ap.error(f"--{name.replace('_', '-')}: expected an integer >= 1, got {getattr(args, name)}")
+    if not 0.0 <= args.texture_mix <= 1.0:
+        ap.error(f"--texture-mix: expected a share from 0 to 1, got {args.texture_mix}")
     if args.identities > args.per_face:
         ap.error(f"--identities: expected at most --per-face ({args.per_face}), got {args.identities}")
     normalization = _settings(args)  # before anything is simulated: GazeAugError exits 2
@@ -165,7 +175,8 @@ def run() -> None:
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     out = args.output
-    sim = SimSettings(vary_identity=not args.no_vary)
+    sim = SimSettings(vary_identity=not args.no_vary)  # the test people's
+    train_sim = SimSettings(vary_identity=not args.no_vary, texture_mix_share=args.texture_mix)
     faces = [args.data / "faces" / n for n in TRAIN_PHOTOS]
     missing = [f for f in faces if not f.is_file()]
     if missing:  # before anything is written to OUT
@@ -187,17 +198,19 @@ def run() -> None:
                 made["images"],
                 made["subjects"],
                 made["settings"]["vary_identity"],
+                made["settings"].get("texture_mix_share", 0.0),
             )
         except KeyError as exc:
             ap.exit(2, f"{folder}: cannot reuse it (its simulation.json records no {exc}: an older version made it)\n")
         except (OSError, ValueError, TypeError) as exc:
             ap.exit(2, f"{folder}: cannot reuse it (no readable simulation.json: {exc}); drop --reuse-simulated\n")
-        now = (SIMULATOR_REVISION, rig_name, seed, images, subjects, not args.no_vary)
+        mix = args.texture_mix if folder == train_dir else 0.0
+        now = (SIMULATOR_REVISION, rig_name, seed, images, subjects, not args.no_vary, mix)
         if then != now:
             ap.exit(
                 2,
                 f"{folder}: cannot reuse it: simulated with (simulator revision, rig, seed, images, subjects, "
-                f"vary identity) {then}, "
+                f"vary identity, texture mix) {then}, "
                 f"this run asks for {now}; drop --reuse-simulated\n",
             )
         return False
@@ -216,7 +229,7 @@ def run() -> None:
             per_face=args.per_face,
             identities_per_face=args.identities,
             seed=args.seed,
-            **kw,
+            **{**kw, "settings": train_sim},
         )
     for folder, rig_name in ((test_dir, "wheelchair"), (same_dir, "screen")):
         if todo[folder]:

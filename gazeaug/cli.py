@@ -544,6 +544,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="no identity draws: every subject looks like its photo (only the eye-axis offset is drawn)",
     )
     sm.add_argument(
+        "--texture-mix",
+        type=finite_float,
+        default=0.0,
+        metavar="SHARE",
+        help="share of subjects whose skin is mixed with another face's of the run (0 to 1; the other's "
+        "weight drawn in 0.25-0.6; default 0: each face's own skin)",
+    )
+    sm.add_argument(
         "--seed", type=_seed, default=0, help="everything drawn (identities, poses, gaze) derives from it (default 0)"
     )
     sm.add_argument("-o", "--output", type=Path, required=True, help="dataset folder to create")
@@ -1259,6 +1267,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         if len(faces) != 1:
             raise GazeAugError(f"--sequence: one subject, so one face; got {len(faces)} faces")
+        if args.texture_mix:
+            raise GazeAugError("--texture-mix: mixes the skin of several faces; --sequence simulates one")
         seq = simulate_sequence(
             faces[0],
             load_rig(args.rig),
@@ -1283,7 +1293,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         identities_per_face=args.identities_per_face,
         per_video=args.per_video,
         all_faces=args.all_faces,
-        settings=SimSettings(vary_identity=not args.no_identity_variation),
+        settings=SimSettings(vary_identity=not args.no_identity_variation, texture_mix_share=args.texture_mix),
         engine=engine,
     )
     print(json.dumps({k: summary[k] for k in ("output", "images", "faces", "subjects")}))

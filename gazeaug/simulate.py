@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +72,8 @@ __all__ = [
     "eyeball_depth_mm",
     "rig_pose",
     "eyes_only",
+    "warp_texture",
+    "other_photo_index",
 ]
 
 
@@ -141,6 +143,11 @@ class SimSettings:
             default 0.6).
         ambient_range: the drawn ambient share of the light (default 0.35-0.8).
         specular_range: the corneal highlight's strength, grey levels (default 0-160).
+        texture_mix_share: share of subjects whose face skin is mixed with another photo's of the
+            same run (default 0: off; a run of one face has no other). The other photo's texture is
+            carried onto this photo's through the shared topology (:func:`warp_texture`: the
+            landmark triangles, so lids land on lids), each shading divided out first.
+        texture_mix_weight: the drawn weight of the other photo's skin (default 0.25-0.6).
     """
 
     eyeball_radius_mm: float = 12.0
@@ -172,6 +179,16 @@ class SimSettings:
     delight: float = 0.6
     ambient_range: tuple[float, float] = (0.35, 0.8)
     specular_range: tuple[float, float] = (0.0, 160.0)
+    texture_mix_share: float = 0.0
+    texture_mix_weight: tuple[float, float] = (0.25, 0.6)
+
+    def __post_init__(self) -> None:
+        share = self.texture_mix_share
+        if not (isinstance(share, (int, float)) and not isinstance(share, bool) and 0.0 <= share <= 1.0):
+            raise GazeAugError(f"texture mix share: expected a number from 0 to 1, got {share!r}")
+        lo, hi = self.texture_mix_weight
+        if not 0.0 <= lo <= hi <= 1.0:
+            raise GazeAugError(f"texture mix weight: expected 0 <= low <= high <= 1, got {self.texture_mix_weight!r}")
 
 
 @dataclass(frozen=True)
@@ -212,6 +229,10 @@ class SubjectDraw:
         skin_gain: (3,) colour gains of the face's texture.
         iris_pattern: seed of the iris's radial streaks.
         glasses: the frame, or None.
+        texture_mix_pick: which other photo's skin is mixed into this one's: a uniform draw in
+            [0, 1) that the run maps to one of its other photos (:func:`other_photo_index`);
+            None: the photo's own skin alone.
+        texture_mix_weight: the other photo's share of the skin, 0 to 1.
     """
 
     shape_coefficients: tuple[float, ...] = ()
@@ -227,6 +248,8 @@ class SubjectDraw:
     skin_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
     iris_pattern: int = 0
     glasses: Glasses | None = None
+    texture_mix_pick: float | None = None
+    texture_mix_weight: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -274,7 +297,7 @@ def draw_subject(settings: SimSettings, rng: np.random.Generator) -> SubjectDraw
             rgb=(float(rgb[0]), float(rgb[1]), float(rgb[2])),
         )
     eyeball = float(rng.uniform(*s.eyeball_radius_range_mm))
-    return SubjectDraw(
+    draw = SubjectDraw(
         shape_coefficients=coeffs,
         head_scale=float(np.exp(s.head_scale_sd * rng.standard_normal())),
         eyeball_radius_mm=eyeball,
@@ -289,6 +312,11 @@ def draw_subject(settings: SimSettings, rng: np.random.Generator) -> SubjectDraw
         iris_pattern=int(rng.integers(2**31)),
         glasses=glasses,
     )
+    # drawn last, and only when asked for: every other draw of a seed stays what it was
+    if s.texture_mix_share > 0 and rng.uniform() < s.texture_mix_share:
+        pick = float(rng.uniform())
+        draw = replace(draw, texture_mix_pick=pick, texture_mix_weight=float(rng.uniform(*s.texture_mix_weight)))
+    return draw
 
 
 def eyeball_depth_mm(base_depth_mm: float, eyeball_radius_mm: float) -> float:
@@ -582,6 +610,102 @@ def _delit(texture: NDArray[np.uint8], strength: float) -> NDArray[np.float64]:
     return np.asarray(np.clip(tex / shading[..., None] ** strength, 0.0, 255.0))
 
 
+def other_photo_index(index: int, num_photos: int, pick: float) -> int:
+    """The photo a subject of photo ``index`` mixes its skin with: one of the run's others.
+
+    Args:
+        index: the subject's own photo, 0 to ``num_photos - 1``.
+        num_photos: the photos of the run (at least 2).
+        pick: :attr:`SubjectDraw.texture_mix_pick`, in [0, 1): the others in order
+            ``index + 1, index + 2, ...`` (wrapping), each an equal share of [0, 1).
+    """
+    if num_photos < 2:
+        raise GazeAugError(f"texture mixing needs another photo; the run has {num_photos}")
+    step = min(int(pick * (num_photos - 1)), num_photos - 2)
+    return (index + 1 + step) % num_photos
+
+
+def warp_texture(
+    source_texture: NDArray[Any],
+    source_uv: NDArray[np.float64],
+    target_uv: NDArray[np.float64],
+    triangles: NDArray[Any],
+    target_size_wh: tuple[int, int],
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Carry one mesh's texture onto another mesh's texture layout, triangle by triangle.
+
+    Both meshes share the topology (vertex index = landmark index): each target
+    texture pixel inside a triangle reads the source texture at the same
+    barycentric point of the source's triangle (bilinear, edge pixels repeated).
+
+    Convention: glTF texture coordinates (origin at the image's top-left
+    corner, v down), turned into pixels by :func:`facemesh.conventions.uv_to_pixels`
+    (pixel centres at integers).
+
+    Args:
+        source_texture: (hs, ws, C) source texture, any numeric dtype.
+        source_uv: (V, 2) float64 glTF texture coordinates of the source's vertices.
+        target_uv: (V, 2) float64 glTF texture coordinates of the target's vertices.
+        triangles: (M, 3) integer vertex indices shared by both.
+        target_size_wh: (w, h) of the target texture, pixels.
+
+    Returns:
+        ((h, w, C) float32 the source's texture in the target's layout, (h, w) bool the pixels a
+        triangle covers; the rest are 0).
+    """
+    import cv2
+
+    w, h = target_size_wh
+    tri = np.asarray(triangles, dtype=np.int64)
+    hs, ws = source_texture.shape[:2]
+    src = uv_to_pixels(np.asarray(source_uv, dtype=np.float64), (ws, hs))[tri]  # (M, 3, 2)
+    dst = uv_to_pixels(np.asarray(target_uv, dtype=np.float64), (w, h))[tri]
+    # per triangle the affine map target px -> source px: S = A [D; 1]  =>  A = S [D; 1]^-1
+    d = np.concatenate([dst.transpose(0, 2, 1), np.ones((len(tri), 1, 3))], axis=1)  # (M, 3, 3)
+    ok = np.abs(np.linalg.det(d)) > 1e-9  # triangles of no area cover no pixel
+    ids = np.zeros((h, w), dtype=np.int32)  # 0: none; m + 1: triangle m
+    scale = 16  # 4 fractional bits: corners placed to 1/16 px
+    for m in np.flatnonzero(ok):
+        pts = np.round(dst[m] * scale).astype(np.int32).reshape(3, 2)
+        cv2.fillPoly(ids, [pts], (float(m + 1),), lineType=cv2.LINE_8, shift=4)
+    covered = ids > 0
+    a = np.zeros((len(tri), 2, 3))
+    a[ok] = src.transpose(0, 2, 1)[ok] @ np.linalg.inv(d[ok])
+    yy, xx = np.nonzero(covered)
+    am = a[ids[yy, xx] - 1]  # (P, 2, 3)
+    map_xy = np.zeros((h, w, 2), dtype=np.float32)
+    map_xy[yy, xx] = (am[:, :, 0] * xx[:, None] + am[:, :, 1] * yy[:, None] + am[:, :, 2]).astype(np.float32)
+    tex = np.asarray(source_texture, dtype=np.float32)
+    out = cv2.remap(tex, map_xy[..., 0], map_xy[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = np.asarray(out, dtype=np.float32).reshape(h, w, -1)
+    out[~covered] = 0.0
+    return out, covered
+
+
+def _mixed_skin(
+    own: NDArray[np.float64], photo: PhotoFace, other: PhotoFace, other_delit: NDArray[np.float64], weight: float
+) -> NDArray[np.float64]:
+    """``own`` (``photo``'s de-lit texture) with ``weight`` of ``other``'s de-lit skin, over the face's triangles.
+
+    The other photo's share fades out over a few texels at the face's outline, so no seam shows
+    where the face meets the rings (hair, background), which stay ``photo``'s.
+    """
+    import cv2
+
+    n = photo.num_face_vertices
+    if other.num_face_vertices != n:
+        raise GazeAugError(
+            f"texture mixing: {other.source} has {other.num_face_vertices} landmark vertices, {photo.source} {n}"
+        )
+    face_tri = photo.triangles[(photo.triangles < n).all(axis=1)]
+    th, tw = own.shape[:2]
+    warped, covered = warp_texture(other_delit, other.uv, photo.uv, face_tri, (tw, th))
+    inner = cv2.erode(covered.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2).astype(np.float32)
+    fade = np.asarray(cv2.GaussianBlur(inner, (0, 0), max(1.0, 0.01 * max(tw, th))), dtype=np.float64)
+    share = weight * fade * covered
+    return np.asarray(own * (1.0 - share[..., None]) + warped.astype(np.float64) * share[..., None])
+
+
 def _glasses_mesh(
     eye_centres: dict[str, NDArray[np.float64]], g: Glasses
 ) -> tuple[NDArray[np.float64], NDArray[np.uint32]]:
@@ -640,9 +764,13 @@ class SimSubject:
         name: subject id.
         settings: see :class:`SimSettings`.
         draw: the identity (see :func:`draw_subject`).
+        mix_with: the photo whose skin ``draw.texture_mix_weight`` of is mixed into ``photo``'s
+            (the run's choice by ``draw.texture_mix_pick``; None: ``photo``'s skin alone).
     """
 
-    def __init__(self, photo: PhotoFace, name: str, settings: SimSettings, draw: SubjectDraw):
+    def __init__(
+        self, photo: PhotoFace, name: str, settings: SimSettings, draw: SubjectDraw, mix_with: PhotoFace | None = None
+    ):
         from facemesh.face_models.shape_space import shape_space
 
         self.name = name
@@ -681,7 +809,13 @@ class SimSubject:
             self.blink_travel[ids] = float(np.ptp(head[ids, 1])) * self.lid_weight[ids, 0]
         self.head = head
         self.triangles = photo.triangles
-        tex = _delit(photo.texture, s.delight if s.relight else 0.0) * np.asarray(d.skin_gain)
+        strength = s.delight if s.relight else 0.0
+        tex = _delit(photo.texture, strength)
+        self.mixed_with = None
+        if mix_with is not None and d.texture_mix_weight > 0:
+            tex = _mixed_skin(tex, photo, mix_with, _delit(mix_with.texture, strength), d.texture_mix_weight)
+            self.mixed_with = mix_with.source
+        tex = tex * np.asarray(d.skin_gain)
         self.texture = np.ascontiguousarray(np.clip(np.round(tex), 0, 255).astype(np.uint8))
         th, tw = self.texture.shape[:2]
         self.face_shader = BilinearTextureShader(self.texture, TexelTable(photo.uv, self.triangles, (tw, th)))
@@ -1096,6 +1230,7 @@ def simulate(
     Raises:
         InputError: a face path that is missing or not a file (before anything is written).
         OutputError: ``out_dir`` is not empty (without ``overwrite``), is a file, or another run writes it.
+        GazeAugError: ``settings.texture_mix_share`` above 0 with fewer than two faces.
     """
     from facemesh.io import check_input_file
     from facemesh.outputs import staged_folder
@@ -1107,6 +1242,10 @@ def simulate(
     faces = _expand_faces(faces, per_video=per_video, all_faces=all_faces)
     if per_face < 1:
         raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
+    if s.texture_mix_share > 0 and len(faces) < 2:
+        raise GazeAugError(
+            f"texture mixing mixes the skin of two faces; this run has {len(faces)}: give more faces, or no mixing"
+        )
     if not 1 <= identities_per_face <= per_face:
         raise GazeAugError(
             f"identities per face: expected an integer from 1 to per_face ({per_face}), got {identities_per_face}"
@@ -1152,6 +1291,7 @@ class _FaceTask:
     seed: int
     settings: SimSettings
     identities: int
+    faces: tuple[Any, ...] = ()  # every face of the run (texture mixing reads the others)
 
 
 _SIM_STATE: dict[str, Any] = {}
@@ -1173,11 +1313,21 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
     k = np.array(rig.camera().matrix)
     image, source, person = face_image(task.face)
     photo = PhotoFace.from_image(image, _SIM_STATE["detector"], source)
+    others: dict[int, PhotoFace] = {}  # the run's other photos this face's subjects mix skin with
+
+    def other(pick: float) -> PhotoFace:
+        j = other_photo_index(i, len(task.faces), pick)
+        if j not in others:
+            img, src, _ = face_image(task.faces[j])
+            others[j] = PhotoFace.from_image(img, _SIM_STATE["detector"], src)
+        return others[j]
+
     subjects = []
     for kk in range(task.identities):
         sid = f"sim{i:02d}" if task.identities == 1 else f"sim{i:02d}i{kk:02d}"
         draw = draw_subject(s, np.random.default_rng([task.seed, i, 10**6 + kk]))
-        subjects.append(SimSubject(photo, sid, s, draw))
+        mix = other(draw.texture_mix_pick) if draw.texture_mix_pick is not None and len(task.faces) > 1 else None
+        subjects.append(SimSubject(photo, sid, s, draw, mix))
     rows, truth = [], []
     for j in range(task.per_face):
         subj = subjects[j % task.identities]
@@ -1198,6 +1348,7 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
                 "face_coverage": frame.coverage,
                 "subject": subject_id,
                 "subject_draw": subj.draw.as_dict(),
+                "texture_mixed_with": subj.mixed_with,
                 "light": frame.light,
             }
         )
@@ -1230,8 +1381,10 @@ def _simulate_into(
         from tqdm import tqdm
 
         bar = tqdm(total=len(faces) * per_face, unit="image", desc="simulate", dynamic_ncols=True)
+    mixable = tuple(faces) if s.texture_mix_share > 0 else ()  # only what a task reads
     tasks = (
-        (i, _FaceTask(i, face, str(out.resolve()), rig, per_face, seed, s, identities)) for i, face in enumerate(faces)
+        (i, _FaceTask(i, face, str(out.resolve()), rig, per_face, seed, s, identities, mixable))
+        for i, face in enumerate(faces)
     )
 
     def take(_i: int, result: tuple[list[dict[str, Any]], list[dict[str, Any]]]) -> None:

@@ -327,3 +327,99 @@ def test_a_larger_eyeball_sits_deeper_so_that_its_front_stays(photo):
             np.testing.assert_allclose(subj.eye_centre[side][:2], contour_centre[:2], atol=1e-9)
             # ... with its front surface 1.5 mm behind the contour whatever the radius
             assert subj.eye_centre[side][2] - radius - contour_centre[2] == pytest.approx(-1.5, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- skin mixed between photos
+
+
+def test_warp_texture_follows_each_triangles_affine_map():
+    """Two triangles (a square) in both layouts; the source texture holds its own pixel coordinates.
+
+    Target layout: the square [20, 60] x [10, 50] px of an 80 x 64 texture; source layout: the
+    square [100, 180] x [40, 200] px of a 256 x 256 texture, so target (x, y) must read source
+    (100 + 2 (x - 20), 40 + 4 (y - 10)): derived by hand from the two squares' corners.
+    """
+    from facemesh.conventions import pixels_to_uv
+    from gazeaug.simulate import warp_texture
+
+    tri = np.array([[0, 1, 2], [0, 2, 3]])
+    src_px = np.array([[100.0, 40.0], [180.0, 40.0], [180.0, 200.0], [100.0, 200.0]])
+    dst_px = np.array([[20.0, 10.0], [60.0, 10.0], [60.0, 50.0], [20.0, 50.0]])
+    src_uv = pixels_to_uv(src_px, (0.0, 0.0), (256, 256))
+    dst_uv = pixels_to_uv(dst_px, (0.0, 0.0), (80, 64))
+    ys, xs = np.mgrid[0:256, 0:256].astype(np.float32)
+    tex = np.stack([xs, ys, np.full_like(xs, 7.0)], axis=2)
+    out, covered = warp_texture(tex, src_uv, dst_uv, tri, (80, 64))
+    assert out.shape == (64, 80, 3) and out.dtype == np.float32 and covered.shape == (64, 80)
+    yy, xx = np.mgrid[0:64, 0:80]
+    inside = (xx >= 21) & (xx <= 59) & (yy >= 11) & (yy <= 49)
+    assert covered[inside].all() and not covered[(xx < 19) | (xx > 61) | (yy < 9) | (yy > 51)].any()
+    np.testing.assert_allclose(out[..., 0][inside], (100 + 2 * (xx - 20))[inside], atol=1e-3)
+    np.testing.assert_allclose(out[..., 1][inside], (40 + 4 * (yy - 10))[inside], atol=1e-3)
+    assert (out[..., 2][covered] == 7.0).all() and (out[~covered] == 0).all()
+
+
+def test_other_photo_index_spreads_over_the_others():
+    from gazeaug.errors import GazeAugError
+    from gazeaug.simulate import other_photo_index
+
+    picks = np.linspace(0.0, 0.999, 400)
+    for n in (2, 3, 9):
+        for i in range(n):
+            got = [other_photo_index(i, n, p) for p in picks]
+            assert i not in got and set(got) == set(range(n)) - {i}
+            counts = np.bincount(got, minlength=n)
+            assert counts.max() - counts[counts > 0].min() <= 2  # equal shares of [0, 1)
+    with pytest.raises(GazeAugError, match="another photo"):
+        other_photo_index(0, 1, 0.5)
+
+
+def test_texture_mix_draws_last_and_leaves_other_draws_alone():
+    plain = [draw_subject(SimSettings(), np.random.default_rng([3, i])) for i in range(60)]
+    mixed = [draw_subject(SimSettings(texture_mix_share=0.5), np.random.default_rng([3, i])) for i in range(60)]
+    from dataclasses import replace
+
+    assert all(p.texture_mix_pick is None and p.texture_mix_weight == 0.0 for p in plain)
+    assert [replace(m, texture_mix_pick=None, texture_mix_weight=0.0) for m in mixed] == plain
+    chosen = [m for m in mixed if m.texture_mix_pick is not None]
+    assert 15 <= len(chosen) <= 45
+    assert all(0.0 <= m.texture_mix_pick < 1.0 and 0.25 <= m.texture_mix_weight <= 0.6 for m in chosen)
+    with pytest.raises(Exception, match="texture mix share"):
+        SimSettings(texture_mix_share=1.5)
+
+
+def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
+    """Every subject mixed: each names the other face; the images differ from the unmixed run's, the labels not."""
+    from conftest import face_photo
+
+    from gazeaug.errors import GazeAugError
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import simulate
+
+    second = face_photo(faces_dir, "sergey.png", any_face=True)
+    faces = [None, second]
+    plain, mixed = tmp_path / "plain", tmp_path / "mixed"
+    simulate(faces, BUILTIN_RIGS["screen"], plain, per_face=1, progress=False)
+    simulate(
+        faces, BUILTIN_RIGS["screen"], mixed, per_face=1, progress=False, settings=SimSettings(texture_mix_share=1.0)
+    )
+    rows = [json.loads(line) for line in (mixed / "simulation.jsonl").read_text().splitlines()]
+    base = [json.loads(line) for line in (plain / "simulation.jsonl").read_text().splitlines()]
+    assert [r["texture_mixed_with"] for r in rows] == [base[1]["source_face"], base[0]["source_face"]]
+    assert all(r["texture_mixed_with"] is None for r in base)
+    assert (mixed / "labels.csv").read_text() == (plain / "labels.csv").read_text()
+    from facemesh.io import load_image_rgb
+
+    a = load_image_rgb(plain / "sim00" / "00000.jpg").astype(float)
+    b = load_image_rgb(mixed / "sim00" / "00000.jpg").astype(float)
+    changed = np.abs(a - b).max(axis=2) > 20  # the face's skin (11-17k px of 307k, measured); nothing else drawn moved
+    assert changed.sum() > 2000 and not changed[:, :100].any() and not changed[:, -100:].any()
+    with pytest.raises(GazeAugError, match="two faces"):
+        simulate(
+            [None],
+            BUILTIN_RIGS["screen"],
+            tmp_path / "one",
+            per_face=1,
+            progress=False,
+            settings=SimSettings(texture_mix_share=0.5),
+        )
