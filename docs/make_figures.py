@@ -9,6 +9,8 @@ NAME is one of (``--list`` prints them with their files):
 - ``identities``: identities.png, eye patches of simulated identities;
 - ``preview``: preview_sheet.png and preview_distribution.png, ``gazeaug preview`` on the
   built-in sample (16 augmented samples, the default distribution, seed 0);
+- ``texture_mix``: texture_mix.png, three photos simulated without and with another's skin mixed in
+  (needs ../shared);
 - ``placements``: placements.png, ``benchmarks/compare_placements.py`` (needs ../shared);
 - ``reconstruction``: reconstruction.png, ``benchmarks/bench_reconstruct.py`` (needs ../shared).
 
@@ -179,6 +181,44 @@ def preview_figure() -> None:
     print(f"wrote {IMG / 'preview_sheet.png'}, {IMG / 'preview_distribution.png'}")
 
 
+def texture_mix_figure() -> None:
+    """Three photos simulated (screen rig, seed 0) without and with another photo's skin mixed in (needs ../shared)."""
+    import tempfile
+    import warnings
+
+    import cv2
+
+    from facemesh.io import load_image_rgb, save_image_rgb
+    from gazeaug.sampling import BUILTIN_RIGS
+    from gazeaug.simulate import SimSettings, simulate
+
+    names = ("sergey.png", "business-person.png", "aflw_deca/AFLW2000_image00302.jpg")
+    if not all((SHARED_FACES / n).is_file() for n in names):
+        print(f"skipped texture_mix.png: {SHARED_FACES} not found")
+        return
+    warnings.simplefilter("ignore")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for share, name in ((0.0, "plain"), (1.0, "mixed")):
+            simulate(
+                [str(SHARED_FACES / n) for n in names],
+                BUILTIN_RIGS["screen"],
+                Path(tmp) / name,
+                per_face=1,
+                progress=False,
+                settings=SimSettings(texture_mix_share=share),
+            )
+        for i in range(len(names)):
+            pair = [
+                load_image_rgb(Path(tmp) / k / f"sim{i:02d}" / "00000.jpg")[100:400, 170:470]
+                for k in ("plain", "mixed")
+            ]
+            rows.append(np.concatenate(pair, axis=1))
+    sheet = np.concatenate(rows, axis=0)
+    save_image_rgb(IMG / "texture_mix.png", cv2.resize(sheet, None, fx=0.75, fy=0.75, interpolation=cv2.INTER_AREA))
+    print(f"wrote {IMG / 'texture_mix.png'}")
+
+
 def _benchmark(script: str, *args: str) -> None:
     """Run a benchmark script that draws a figure (it needs ../shared/data/faces)."""
     import subprocess
@@ -195,6 +235,7 @@ FIGURES = {
     "rigs": (simulation_figure, ("simulated_rigs.png",)),
     "identities": (identities_figure, ("identities.png",)),
     "preview": (preview_figure, ("preview_sheet.png", "preview_distribution.png")),
+    "texture_mix": (texture_mix_figure, ("texture_mix.png",)),
     "placements": (
         lambda: _benchmark("compare_placements.py", str(SHARED_FACES), "-o", str(IMG / "placements.png")),
         ("placements.png",),
