@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -27,11 +26,13 @@ def put_label(
         image: (H, W, 3) uint8 BGR picture, written in place.
         text: the label (OpenCV's Hershey font: ASCII).
         origin_px: (x, y) integer pixels of the text's bottom-left corner, image frame
-            (x right, y down, origin at the top-left pixel's corner).
+            (x right, y down, the top-left pixel's centre at (0, 0), as OpenCV).
         scale: OpenCV font scale (0.5 is about 10 px high).
         colour_bgr: the strokes' colour, BGR 0-255.
         thickness: the strokes' width, pixels.
     """
+    import cv2
+
     font = cv2.FONT_HERSHEY_SIMPLEX
     cv2.putText(image, text, origin_px, font, scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
     cv2.putText(image, text, origin_px, font, scale, colour_bgr, thickness, cv2.LINE_AA)

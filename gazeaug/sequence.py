@@ -226,7 +226,8 @@ def simulate_sequence(
         A summary: ``output``, ``frames``, ``fps``, ``seconds``, ``fixations``, ``glances``, ``blinks``.
 
     Raises:
-        GazeAugError: a rig without targets; OutputError: ``out_dir`` is not empty (without ``overwrite``).
+        GazeAugError: a rig without targets; ``settings.texture_mix_share`` above 0 (one person).
+        OutputError: ``out_dir`` is not empty (without ``overwrite``).
     """
     from facemesh.io import atomic_write, save_image_rgb
     from facemesh.outputs import staged_folder
@@ -238,6 +239,8 @@ def simulate_sequence(
     if not rig.targets and sequence.pattern == "targets":  # the calibration grid needs none
         raise GazeAugError(f"rig {rig.name!r}: a sequence needs a rig with targets (see data_samples/rigs/)")
     s = settings or SimSettings()
+    if s.texture_mix_share > 0:
+        raise GazeAugError("texture mixing mixes the skin of several people; a sequence simulates one")
     seq = sequence
     rng = np.random.default_rng([seed, 7])
     image, source, _ = face_image(face)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -74,6 +75,7 @@ __all__ = [
     "eyes_only",
     "warp_texture",
     "other_photo_index",
+    "face_person",
 ]
 
 
@@ -184,10 +186,15 @@ class SimSettings:
 
     def __post_init__(self) -> None:
         share = self.texture_mix_share
-        if not (isinstance(share, (int, float)) and not isinstance(share, bool) and 0.0 <= share <= 1.0):
+        if not (isinstance(share, numbers.Real) and not isinstance(share, bool) and 0.0 <= share <= 1.0):
             raise GazeAugError(f"texture mix share: expected a number from 0 to 1, got {share!r}")
-        lo, hi = self.texture_mix_weight
-        if not 0.0 <= lo <= hi <= 1.0:
+        w = self.texture_mix_weight
+        if not (
+            isinstance(w, (tuple, list))
+            and len(w) == 2
+            and all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in w)
+            and 0.0 <= w[0] <= w[1] <= 1.0
+        ):
             raise GazeAugError(f"texture mix weight: expected 0 <= low <= high <= 1, got {self.texture_mix_weight!r}")
 
 
@@ -610,19 +617,37 @@ def _delit(texture: NDArray[np.uint8], strength: float) -> NDArray[np.float64]:
     return np.asarray(np.clip(tex / shading[..., None] ** strength, 0.0, 255.0))
 
 
-def other_photo_index(index: int, num_photos: int, pick: float) -> int:
-    """The photo a subject of photo ``index`` mixes its skin with: one of the run's others.
+def other_photo_index(index: int, persons: Sequence[str], pick: float) -> int:
+    """The face a subject of face ``index`` mixes its skin with: one of the run's faces of another person.
 
     Args:
-        index: the subject's own photo, 0 to ``num_photos - 1``.
-        num_photos: the photos of the run (at least 2).
-        pick: :attr:`SubjectDraw.texture_mix_pick`, in [0, 1): the others in order
-            ``index + 1, index + 2, ...`` (wrapping), each an equal share of [0, 1).
+        index: the subject's own face, 0 to ``len(persons) - 1``.
+        persons: who each face of the run shows (the frames of one video are one person).
+        pick: :attr:`SubjectDraw.texture_mix_pick`, in [0, 1): the faces of other persons in
+            their order, each an equal share of [0, 1).
+
+    Raises:
+        GazeAugError: no face of another person; ``index`` or ``pick`` out of range.
     """
-    if num_photos < 2:
-        raise GazeAugError(f"texture mixing needs another photo; the run has {num_photos}")
-    step = min(int(pick * (num_photos - 1)), num_photos - 2)
-    return (index + 1 + step) % num_photos
+    if not 0 <= index < len(persons):
+        raise GazeAugError(f"face index: expected 0 to {len(persons) - 1}, got {index}")
+    if not 0.0 <= pick < 1.0:
+        raise GazeAugError(f"texture mix pick: expected a number in [0, 1), got {pick!r}")
+    others = [k for k, p in enumerate(persons) if p != persons[index]]
+    if not others:
+        raise GazeAugError(
+            f"texture mixing needs a face of another person; every face of the run shows {persons[index]}"
+        )
+    return others[min(int(pick * len(others)), len(others) - 1)]
+
+
+def face_person(face: Any) -> str:
+    """Who a face of the run shows, without reading it: a FaceSource's person, else the photo's stem."""
+    from .faces import FaceSource
+
+    if isinstance(face, FaceSource):
+        return face.person or face.name
+    return "<built-in>" if face is None else Path(str(face)).stem
 
 
 def warp_texture(
@@ -687,7 +712,7 @@ def _mixed_skin(
 ) -> NDArray[np.float64]:
     """``own`` (``photo``'s de-lit texture) with ``weight`` of ``other``'s de-lit skin, over the face's triangles.
 
-    The other photo's share fades out over a few texels at the face's outline, so no seam shows
+    The other photo's share fades to 0 at the face's outline (over 2 % of the texture), so no seam shows
     where the face meets the rings (hair, background), which stay ``photo``'s.
     """
     import cv2
@@ -700,9 +725,10 @@ def _mixed_skin(
     face_tri = photo.triangles[(photo.triangles < n).all(axis=1)]
     th, tw = own.shape[:2]
     warped, covered = warp_texture(other_delit, other.uv, photo.uv, face_tri, (tw, th))
-    inner = cv2.erode(covered.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2).astype(np.float32)
-    fade = np.asarray(cv2.GaussianBlur(inner, (0, 0), max(1.0, 0.01 * max(tw, th))), dtype=np.float64)
-    share = weight * fade * covered
+    # 0 at the outline, 1 from a ramp's width inside it (2 % of the texture, at least 2 texels)
+    ramp = max(2.0, 0.02 * max(tw, th))
+    inside = np.asarray(cv2.distanceTransform(covered.astype(np.uint8), cv2.DIST_L2, 5), dtype=np.float64)
+    share = weight * np.clip(inside / ramp, 0.0, 1.0)
     return np.asarray(own * (1.0 - share[..., None]) + warped.astype(np.float64) * share[..., None])
 
 
@@ -757,7 +783,9 @@ class SimSubject:
     The drawn shape (the shape space's offset, then the head scale about the
     eyes' midpoint) moves every vertex, the rings with the contour vertex they
     follow; the texture stays the photo's (through the shared topology), with
-    the photo's shading divided out (``settings.delight``) and the skin gain.
+    the photo's shading divided out (``settings.delight``) and the skin gain,
+    and with ``draw.texture_mix_weight`` of ``mix_with``'s skin mixed in when given.
+    :attr:`mixed_with` names that photo (None: none).
 
     Args:
         photo: the photo's face.
@@ -1230,7 +1258,7 @@ def simulate(
     Raises:
         InputError: a face path that is missing or not a file (before anything is written).
         OutputError: ``out_dir`` is not empty (without ``overwrite``), is a file, or another run writes it.
-        GazeAugError: ``settings.texture_mix_share`` above 0 with fewer than two faces.
+        GazeAugError: ``settings.texture_mix_share`` above 0 with faces of fewer than two people.
     """
     from facemesh.io import check_input_file
     from facemesh.outputs import staged_folder
@@ -1242,9 +1270,11 @@ def simulate(
     faces = _expand_faces(faces, per_video=per_video, all_faces=all_faces)
     if per_face < 1:
         raise GazeAugError(f"per_face: expected an integer >= 1, got {per_face}")
-    if s.texture_mix_share > 0 and len(faces) < 2:
+    people = len({face_person(f) for f in faces})
+    if s.texture_mix_share > 0 and people < 2:
         raise GazeAugError(
-            f"texture mixing mixes the skin of two faces; this run has {len(faces)}: give more faces, or no mixing"
+            f"texture mixing mixes the skin of two people; this run's faces show {people}: "
+            "give faces of more people, or no mixing"
         )
     if not 1 <= identities_per_face <= per_face:
         raise GazeAugError(
@@ -1315,8 +1345,10 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
     photo = PhotoFace.from_image(image, _SIM_STATE["detector"], source)
     others: dict[int, PhotoFace] = {}  # the run's other photos this face's subjects mix skin with
 
+    persons = [face_person(f) for f in task.faces]
+
     def other(pick: float) -> PhotoFace:
-        j = other_photo_index(i, len(task.faces), pick)
+        j = other_photo_index(i, persons, pick)
         if j not in others:
             img, src, _ = face_image(task.faces[j])
             others[j] = PhotoFace.from_image(img, _SIM_STATE["detector"], src)
@@ -1326,7 +1358,7 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
     for kk in range(task.identities):
         sid = f"sim{i:02d}" if task.identities == 1 else f"sim{i:02d}i{kk:02d}"
         draw = draw_subject(s, np.random.default_rng([task.seed, i, 10**6 + kk]))
-        mix = other(draw.texture_mix_pick) if draw.texture_mix_pick is not None and len(task.faces) > 1 else None
+        mix = other(draw.texture_mix_pick) if draw.texture_mix_pick is not None and task.faces else None
         subjects.append(SimSubject(photo, sid, s, draw, mix))
     rows, truth = [], []
     for j in range(task.per_face):

@@ -359,19 +359,28 @@ def test_warp_texture_follows_each_triangles_affine_map():
     assert (out[..., 2][covered] == 7.0).all() and (out[~covered] == 0).all()
 
 
-def test_other_photo_index_spreads_over_the_others():
+def test_other_photo_index_spreads_over_other_people():
     from gazeaug.errors import GazeAugError
     from gazeaug.simulate import other_photo_index
 
     picks = np.linspace(0.0, 0.999, 400)
     for n in (2, 3, 9):
+        persons = [f"p{k}" for k in range(n)]
         for i in range(n):
-            got = [other_photo_index(i, n, p) for p in picks]
+            got = [other_photo_index(i, persons, p) for p in picks]
             assert i not in got and set(got) == set(range(n)) - {i}
             counts = np.bincount(got, minlength=n)
             assert counts.max() - counts[counts > 0].min() <= 2  # equal shares of [0, 1)
-    with pytest.raises(GazeAugError, match="another photo"):
-        other_photo_index(0, 1, 0.5)
+    # the frames of one video are one person: never mixed with each other
+    persons = ["clip", "clip", "clip", "anna"]
+    assert {other_photo_index(i, persons, p) for i in range(3) for p in picks} == {3}
+    assert {other_photo_index(3, persons, p) for p in picks} == {0, 1, 2}
+    with pytest.raises(GazeAugError, match="another person"):
+        other_photo_index(0, ["clip", "clip"], 0.5)
+    with pytest.raises(GazeAugError, match="pick"):
+        other_photo_index(0, persons, 1.0)
+    with pytest.raises(GazeAugError, match="face index"):
+        other_photo_index(4, persons, 0.5)
 
 
 def test_texture_mix_draws_last_and_leaves_other_draws_alone():
@@ -384,8 +393,12 @@ def test_texture_mix_draws_last_and_leaves_other_draws_alone():
     chosen = [m for m in mixed if m.texture_mix_pick is not None]
     assert 15 <= len(chosen) <= 45
     assert all(0.0 <= m.texture_mix_pick < 1.0 and 0.25 <= m.texture_mix_weight <= 0.6 for m in chosen)
-    with pytest.raises(Exception, match="texture mix share"):
-        SimSettings(texture_mix_share=1.5)
+    from gazeaug.errors import GazeAugError
+
+    for bad in ({"texture_mix_share": 1.5}, {"texture_mix_weight": (0.5,)}, {"texture_mix_weight": (0.6, 0.2)}):
+        with pytest.raises(GazeAugError, match="texture mix"):
+            SimSettings(**bad)
+    assert SimSettings(texture_mix_share=np.float32(0.5)).texture_mix_share == 0.5
 
 
 def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
@@ -414,7 +427,7 @@ def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
     b = load_image_rgb(mixed / "sim00" / "00000.jpg").astype(float)
     changed = np.abs(a - b).max(axis=2) > 20  # the face's skin (11-17k px of 307k, measured); nothing else drawn moved
     assert changed.sum() > 2000 and not changed[:, :100].any() and not changed[:, -100:].any()
-    with pytest.raises(GazeAugError, match="two faces"):
+    with pytest.raises(GazeAugError, match="two people"):
         simulate(
             [None],
             BUILTIN_RIGS["screen"],
@@ -423,3 +436,28 @@ def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
             progress=False,
             settings=SimSettings(texture_mix_share=0.5),
         )
+    from facemesh.build import sample_image
+    from gazeaug.faces import FaceSource
+    from gazeaug.sequence import SequenceSettings, simulate_sequence
+
+    frames = [
+        FaceSource(name=f"clip@t={t}s", image=sample_image(), origin=f"clip.mp4@t={t}s", person="clip") for t in (1, 2)
+    ]
+    with pytest.raises(GazeAugError, match="show 1"):  # two frames of one video: one person
+        simulate(
+            frames,
+            BUILTIN_RIGS["screen"],
+            tmp_path / "clip",
+            per_face=1,
+            progress=False,
+            settings=SimSettings(texture_mix_share=0.5),
+        )
+    with pytest.raises(GazeAugError, match="a sequence simulates one"):
+        simulate_sequence(
+            None,
+            BUILTIN_RIGS["wheelchair"],
+            tmp_path / "seq",
+            sequence=SequenceSettings(pattern="calibration"),
+            settings=SimSettings(texture_mix_share=0.5),
+        )
+    assert not (tmp_path / "clip").exists() and not (tmp_path / "seq").exists()
