@@ -410,6 +410,11 @@ def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
     from gazeaug.simulate import simulate
 
     second = face_photo(faces_dir, "sergey.png", any_face=True)
+    if second.stem == "astronaut":  # without ../shared: the built-in photo again, its red and blue swapped
+        from facemesh.io import load_image_rgb, save_image_rgb
+
+        save_image_rgb(tmp_path / "other.png", load_image_rgb(second)[..., ::-1].copy())
+        second = tmp_path / "other.png"
     faces = [None, second]
     plain, mixed = tmp_path / "plain", tmp_path / "mixed"
     simulate(faces, BUILTIN_RIGS["screen"], plain, per_face=1, progress=False)
