@@ -1248,6 +1248,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
 
     engine = _engine(args, local_workers=False)
+    settings = SimSettings(vary_identity=not args.no_identity_variation, texture_mix_share=args.texture_mix)
     if args.sequence is not None and engine.kind != "local":
         raise GazeAugError("--sequence: one subject, simulated on this machine (no --engine ray)")
     if args.sequence is None:
@@ -1267,8 +1268,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         if len(faces) != 1:
             raise GazeAugError(f"--sequence: one subject, so one face; got {len(faces)} faces")
-        if args.texture_mix:
-            raise GazeAugError("--texture-mix: mixes the skin of several faces; --sequence simulates one")
         seq = simulate_sequence(
             faces[0],
             load_rig(args.rig),
@@ -1276,7 +1275,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             sequence=SequenceSettings(seconds=args.sequence, fps=args.fps, pattern=args.pattern),
             seed=args.seed,
             identity_seed=args.identity_seed,
-            settings=SimSettings(vary_identity=not args.no_identity_variation),
+            settings=settings,
             overwrite=args.overwrite,
             progress=not args.quiet,
         )
@@ -1293,7 +1292,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         identities_per_face=args.identities_per_face,
         per_video=args.per_video,
         all_faces=args.all_faces,
-        settings=SimSettings(vary_identity=not args.no_identity_variation, texture_mix_share=args.texture_mix),
+        settings=settings,
         engine=engine,
     )
     print(json.dumps({k: summary[k] for k in ("output", "images", "faces", "subjects")}))

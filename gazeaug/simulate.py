@@ -145,10 +145,11 @@ class SimSettings:
             default 0.6).
         ambient_range: the drawn ambient share of the light (default 0.35-0.8).
         specular_range: the corneal highlight's strength, grey levels (default 0-160).
-        texture_mix_share: share of subjects whose face skin is mixed with another photo's of the
-            same run (default 0: off; a run of one face has no other). The other photo's texture is
-            carried onto this photo's through the shared topology (:func:`warp_texture`: the
-            landmark triangles, so lids land on lids), each shading divided out first.
+        texture_mix_share: share of subjects whose face skin is mixed with another person's photo of
+            the same run (default 0: off; above 0, the run needs faces of two people or more). The
+            other photo's texture is carried onto this photo's through the shared topology
+            (:func:`warp_texture`: the landmark triangles, so lids land on lids), each shading
+            divided out first.
         texture_mix_weight: the drawn weight of the other photo's skin (default 0.25-0.6).
     """
 
@@ -1161,11 +1162,11 @@ def face_image(face: Any) -> tuple[NDArray[np.uint8], str, str]:
     from .pipeline import load_input
 
     if isinstance(face, FaceSource):
-        return face.image, face.origin, face.person or face.name
+        return face.image, face.origin, face_person(face)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the default-camera warning: the simulator sets its own camera
         image, _, source = load_input(face, None)
-    return image, source, Path(str(source)).stem
+    return image, source, face_person(face) if face is not None else Path(str(source)).stem
 
 
 def rig_pose(

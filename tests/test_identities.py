@@ -466,3 +466,14 @@ def test_simulate_mixes_skin_between_faces(tmp_path, faces_dir):
             settings=SimSettings(texture_mix_share=0.5),
         )
     assert not (tmp_path / "clip").exists() and not (tmp_path / "seq").exists()
+
+
+def test_cli_simulate_sequence_refuses_texture_mix(tmp_path, capsys):
+    from pathlib import Path
+
+    from gazeaug.cli import main
+
+    rig = Path(__file__).resolve().parents[1] / "data_samples" / "rigs" / "wheelchair_objects.yaml"
+    out = tmp_path / "seq"
+    assert main(["simulate", "--texture-mix", "0.5", "--sequence", "1", "--rig", str(rig), "-o", str(out)]) == 2
+    assert "a sequence simulates one" in capsys.readouterr().err and not out.exists()
