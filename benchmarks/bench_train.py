@@ -1,6 +1,7 @@
 """Training data path speed: samples per second reading, reading + augmenting, and training.
 
-``python benchmarks/bench_train.py [--rows 20000] [--batch-sizes 256 1024] [--threads 2] [--face-patch W H]``
+``python benchmarks/bench_train.py [--rows 20000] [--batch-sizes 256 1024] [--threads 2] [--face-patch W H]
+[--no-cpu | --no-cuda]``
 builds a synthetic training set (36 x 60 patches: a grey level that encodes the
 gaze, a darker "iris" disc and pixel noise, gzip-compressed like the real sets;
 the schema of ``gazeaug augment``; with ``--face-patch`` a face patch of that size
@@ -25,7 +26,7 @@ and on CUDA when there is one, for every batch size measures one pass over it:
   (the first holds the warm-up);
 - ``train_no_augment_resident``: resident, ``TrainAugment(enabled=False)``.
 
-Prints one JSON line: ``{"rows", "threads", "cpu": {BATCH: {what: samples/s}},
+Prints one JSON line: ``{"rows", "threads", "cpu": {BATCH: {what: samples/s}} or null,
 "cuda": {...} or null, "cuda_device", "torch"}``.
 """
 
@@ -172,6 +173,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--batch-sizes", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
     p.add_argument("--no-cuda", action="store_true", help="CPU only, even with a GPU")
+    p.add_argument("--no-cpu", action="store_true", help="CUDA only (where there is a GPU); the CPU figures are null")
     p.add_argument(
         "--face-patch", type=int, nargs=2, default=None, metavar=("W", "H"), help="face patches too, and a face model"
     )
@@ -183,7 +185,9 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as tmp:
         h5 = synthetic(Path(tmp) / "bench.h5", args.rows, face_size=face)
-        cpu = {str(b): measure(h5, Path(tmp), b, "cpu", face is not None) for b in args.batch_sizes}
+        cpu = None
+        if not args.no_cpu:
+            cpu = {str(b): measure(h5, Path(tmp), b, "cpu", face is not None) for b in args.batch_sizes}
         cuda = None
         if torch.cuda.is_available() and not args.no_cuda:
             cuda = {str(b): measure(h5, Path(tmp), b, "cuda", face is not None) for b in args.batch_sizes}

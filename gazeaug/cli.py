@@ -408,6 +408,12 @@ def build_parser() -> argparse.ArgumentParser:
         "auto: held when they fit in half the memory free there, on the host at most 16 GiB. The same model "
         "either way (default auto)",
     )
+    t.add_argument(
+        "--no-cuda-graphs",
+        action="store_true",
+        help="on CUDA, call the model step by step rather than replay its forward and backward as CUDA graphs "
+        "(the same training, slower; for a model that cannot be captured)",
+    )
     t.add_argument("--resume", action="store_true", help="continue from the checkpoint beside the model (OUT.ckpt.pt)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -1040,6 +1046,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         given=tuple(k for k, v in (("lr", args.lr), ("auto_samples", args.samples)) if v is not None),
         preload=args.preload,
         keep_unfinished=True,
+        cuda_graphs=not args.no_cuda_graphs,
     )
     print(json.dumps({"model": str(args.output), "epochs": len(log), "last": log[-1]}))
     return 0

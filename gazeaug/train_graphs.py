@@ -1,0 +1,106 @@
+"""A training step's forward and backward replayed as CUDA graphs (:func:`graph_model`).
+
+Why: the default gaze model is small, so on a GPU its step is bound by the host launching
+about 400 kernels one by one, not by the GPU. Measured on an NVIDIA H200 (2026-11-28,
+``benchmarks/bench_step.py``): at batch 256 the kernels of an eager step kept the GPU busy
+12 % of the step's wall time; replaying the model's forward and backward as CUDA graphs
+(``torch.cuda.make_graphed_callables``) took the whole step from about 20k to 61-69k samples/s.
+
+What is replayed: the model's forward and backward for batches of the captured shape (a full
+batch), in train mode, under bfloat16 autocast. Anything else (the last, shorter batch of an
+epoch, evaluation, the CPU) calls the model as usual; both share the parameters and the
+BatchNorm statistics. The inputs' augmentation and the optimizer step stay eager.
+
+Capturing runs the model's forward and backward a few times on the sample batch (the warm-up
+``make_graphed_callables`` needs); the BatchNorm running statistics those passes would move are
+put back, so a graphed run trains as an eager one (the same kernels; CUDA's floating point
+results are not bitwise reproducible either way).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import warnings
+from collections.abc import Iterator
+from typing import Any
+
+from .models import import_torch
+
+__all__ = ["graph_model", "quiet_stream_mismatch"]
+
+
+def graph_model(model: Any, sample_args: tuple[Any, ...]) -> Any | None:
+    """``model``'s training forward and backward for inputs shaped as ``sample_args``, as CUDA graphs.
+
+    Args:
+        model: a ``torch.nn.Module`` on a CUDA device, in train mode, its parameters requiring
+            gradients; not changed (its BatchNorm running statistics are restored after the capture).
+        sample_args: the model's inputs of one full batch, as the training gives them (shapes,
+            dtypes, memory formats and device are captured; the values are copied and only warm up).
+
+    Raises:
+        ValueError: ``sample_args`` not all on a CUDA device (a programming error: graphs are CUDA's).
+
+    Returns:
+        A callable taking inputs of exactly those shapes and dtypes (call it under
+        ``torch.autocast("cuda", dtype=torch.bfloat16, cache_enabled=False)``); its outputs live in
+        the graph's memory and are overwritten by the next call, so copy what is kept. None when the
+        model cannot be captured (a warning says why; train eagerly then).
+    """
+    torch = import_torch()
+    devices = sorted({str(a.device) for a in sample_args})
+    if not all(a.is_cuda for a in sample_args):
+        raise ValueError(f"graph_model: expected the sample inputs on a CUDA device, got them on {', '.join(devices)}")
+
+    class _Forward(torch.nn.Module):  # type: ignore[misc,name-defined]
+        """A wrapper whose forward the capture replaces, so ``model`` itself keeps its own."""
+
+        def __init__(self, inner: Any) -> None:
+            super().__init__()
+            self.inner = inner
+
+        def forward(self, *args: Any) -> Any:
+            return self.inner(*args)
+
+    wrapper = _Forward(model)
+    static = tuple(a.detach().clone(memory_format=torch.preserve_format) for a in sample_args)
+    saved = [b.detach().clone() for b in model.buffers()]
+    try:
+        # the capture's backward already meets the warm-up's gradient accumulators (another stream)
+        with torch.autocast("cuda", dtype=torch.bfloat16, cache_enabled=False), quiet_stream_mismatch():
+            return torch.cuda.make_graphed_callables(wrapper, static, allow_unused_input=True)
+    except Exception as exc:  # an operation a graph cannot hold (a host sync, say): eager is still right
+        warnings.warn(
+            f"training without CUDA graphs: the model could not be captured ({exc.__class__.__name__}: {exc})",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return None
+    finally:
+        with torch.no_grad():
+            for b, v in zip(model.buffers(), saved, strict=True):
+                b.copy_(v)
+
+
+@contextlib.contextmanager
+def quiet_stream_mismatch(active: bool = True) -> Iterator[None]:
+    """Backward passes of a run with a captured model, without PyTorch's stream-mismatch warning.
+
+    The parameters' gradient accumulators of a captured model were made on the warm-up's side
+    stream and are kept alive by the graph, so the capture's backward and every later backward
+    (replayed or eager) hand them gradients from another stream: PyTorch synchronises the two,
+    as it must, and warns that the mismatch may be unintended. Here it is intended (PyTorch's
+    message says to switch the warning off then); the synchronisation stays, and is in the
+    measured speed. Switched back on after.
+    ``active`` False: nothing changes.
+    """
+    torch = import_torch()
+    switch = getattr(torch.autograd.graph, "set_warn_on_accumulate_grad_stream_mismatch", None)
+    if not active or switch is None:  # older PyTorch: no such warning
+        yield
+        return
+    switch(False)
+    try:
+        yield
+    finally:
+        switch(True)

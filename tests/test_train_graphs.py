@@ -1,0 +1,150 @@
+"""CUDA graphs in training (gazeaug.train_graphs): the same training as eager steps, only faster.
+
+The CUDA tests run where there is a GPU (CI has none: they are skipped there); the fallback runs anywhere.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from gazeaug import train as train_module
+from gazeaug.models import create_model
+from gazeaug.train import TrainSettings, load_model, train
+from gazeaug.train_graphs import graph_model, quiet_stream_mismatch
+from tests.helpers import synthetic_h5
+
+torch = pytest.importorskip("torch")
+cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+
+
+def test_graph_model_refuses_inputs_off_cuda():
+    """Graphs are CUDA's: inputs on the CPU are a programming error, said with the device found."""
+    model = create_model("mobilenet_gaze").train()
+    x = torch.rand(4, 3, 36, 60)
+    with pytest.raises(ValueError, match="expected the sample inputs on a CUDA device, got them on cpu"):
+        graph_model(model, (x, x, torch.zeros(4, 2)))
+
+
+def test_quiet_stream_mismatch_switches_the_warning_back_on():
+    """Off inside, on after (PyTorch has no getter: the switch is observed through a stand-in)."""
+    seen = []
+    real = getattr(torch.autograd.graph, "set_warn_on_accumulate_grad_stream_mismatch", None)
+    if real is None:
+        pytest.skip("this PyTorch has no such warning")
+    import unittest.mock
+
+    with unittest.mock.patch.object(torch.autograd.graph, "set_warn_on_accumulate_grad_stream_mismatch", seen.append):
+        with quiet_stream_mismatch(False):
+            pass
+        assert seen == []
+        with pytest.raises(KeyError), quiet_stream_mismatch():
+            assert seen == [False]
+            raise KeyError("inside")
+    assert seen == [False, True]
+
+
+@cuda
+def test_graphed_training_equals_eager_training(tmp_path, monkeypatch):
+    """Graphs on and off: the same log and weights (to floating point), the same BatchNorm step count.
+
+    600 rows at batch 256: two full batches (replayed) and one of 88 rows (eager) per epoch, so
+    each BatchNorm counts 3 epochs x 3 steps = 9 training forward passes; the capture's warm-up
+    passes must not count (nor move the running statistics).
+    """
+    h5 = synthetic_h5(tmp_path / "t.h5", n=600)
+    made = []
+
+    def spy(model, args):
+        g = graph_model(model, args)
+        made.append(g)
+        return g
+
+    monkeypatch.setattr(train_module, "graph_model", spy)
+    s = TrainSettings(epochs=3, batch_size=256, device="cuda", seed=3)
+    logs, states = {}, {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for graphs in (True, False):
+            out = tmp_path / f"m_{graphs}.pt"
+            logs[graphs] = train(h5, out, s, progress=False, cuda_graphs=graphs)
+            states[graphs] = load_model(out)[0].state_dict()
+    assert not [w for w in caught if "AccumulateGrad" in str(w.message)]  # the intended mismatch is not warned of
+    assert len(made) == 1 and made[0] is not None  # captured once, in the graphed run only
+    for a, b in zip(logs[True], logs[False], strict=True):
+        assert a["train_loss"] == pytest.approx(b["train_loss"], rel=2e-2)
+        assert a["train_error_deg"] == pytest.approx(b["train_error_deg"], rel=2e-2, abs=0.2)
+    for k, v in states[False].items():
+        g = states[True][k]
+        if k.endswith("num_batches_tracked"):
+            assert int(g) == int(v) == 9, k
+        else:
+            scale = float(v.float().abs().max()) + 1e-3
+            assert float((g.float() - v.float()).abs().max()) <= 2e-2 * scale, k
+
+
+@cuda
+def test_graphed_face_model_trains(tmp_path):
+    """A model reading the face patch too (four inputs) is captured and trains to a finite loss."""
+    h5 = synthetic_h5(tmp_path / "f.h5", n=300, face_size=(64, 64))
+    s = TrainSettings(epochs=2, batch_size=128, device="cuda", model_options={"face": True})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        log = train(h5, tmp_path / "f.pt", s, progress=False)
+    assert not [w for w in caught if "without CUDA graphs" in str(w.message)]  # no fallback to eager
+    assert np.isfinite([r["train_loss"] for r in log]).all()
+
+
+@cuda
+def test_graph_model_falls_back_with_a_warning_and_leaves_the_model_as_it_was():
+    """A model that cannot be captured (a host sync in its forward) gives None and one warning.
+
+    The capture's warm-up passes ran (they moved its BatchNorm statistics): those are put back.
+    The last CUDA test in this file: a failed capture is the one that could disturb the others.
+    """
+
+    class Syncing(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.bn = torch.nn.BatchNorm2d(3)
+            self.fc = torch.nn.Linear(3, 2)
+
+        def forward(self, a, b, c):
+            x = self.bn(a).mean((2, 3))
+            if float(x.sum()) > 1e9:  # reads the value on the host: not allowed while a graph is captured
+                x = x * 2
+            return self.fc(x)
+
+    model = Syncing().cuda().train()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    x = torch.rand(4, 3, 36, 60, device="cuda") * 50
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert graph_model(model, (x, x, torch.zeros(4, 2, device="cuda"))) is None
+    assert len([w for w in caught if "without CUDA graphs" in str(w.message)]) == 1
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    y = model(x, x, None)  # the model still runs eagerly
+    assert torch.isfinite(y).all()
+
+
+def test_cli_no_cuda_graphs_reaches_train(tmp_path, monkeypatch):
+    """``gazeaug train --no-cuda-graphs`` trains without graphs; the default trains with them (on CUDA)."""
+    import gazeaug.train as gt
+    from gazeaug.cli import main
+
+    seen = []
+    real = gt.train
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["cuda_graphs"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(gt, "train", spy)
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32)
+    for extra in ([], ["--no-cuda-graphs"]):
+        out = tmp_path / f"m{len(extra)}.pt"
+        assert main(["train", str(h5), "-o", str(out), "--epochs", "1", "--quiet", "--device", "cpu", *extra]) == 0
+    assert seen == [True, False]
