@@ -1036,3 +1036,23 @@ def test_the_patch_size_recorded_agrees_with_the_patches(tmp_path):
     model, meta = load_model(tmp_path / "n.pt")
     assert meta["normalization"]["patch_size_wh"] == [64, 40] and model.patch_size_wh == (64, 40)
     assert predict_arrays(model, arrays["left_eye"], arrays["right_eye"], arrays["head_pose"]).shape == (32, 2)
+
+
+def test_wide_model_is_the_measured_configuration_and_trains_from_the_cli(tmp_path):
+    """``mobilenet_gaze_wide`` is the network docs/model.md measured (written out here), by name in a model file."""
+    from gazeaug.models.mobilenet import mobilenet_gaze
+
+    measured = dict(stem=16, hidden=256, blocks=((1, 16, 1), (4, 24, 2), (4, 32, 2), (4, 48, 1), (4, 64, 2)))
+    wide = create_model("mobilenet_gaze_wide").state_dict()
+    ref = mobilenet_gaze(**measured).state_dict()
+    assert {k: tuple(v.shape) for k, v in wide.items()} == {k: tuple(v.shape) for k, v in ref.items()}
+    assert 80_000 < sum(v.numel() for k, v in wide.items() if "running" not in k and "num_batches" not in k) < 82_000
+    data = _synthetic_h5(tmp_path / "t.h5", n=64)
+    out = tmp_path / "w.pt"
+    assert main(["train", str(data), "-o", str(out), "--epochs", "1", "--model", "mobilenet_gaze_wide", "--quiet"]) == 0
+    model, meta = load_model(out)
+    assert meta["model"] == "mobilenet_gaze_wide" and meta["model_options"] == {}
+    assert sum(p.numel() for p in model.parameters()) == sum(
+        p.numel() for p in create_model("mobilenet_gaze_wide").parameters()
+    )
+    assert main(["evaluate", str(out), str(data), "-o", str(tmp_path / "ev"), "--quiet"]) == 0

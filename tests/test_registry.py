@@ -69,7 +69,7 @@ def test_command_line_choices_are_the_registries():
     for cmd in ("render", "preview", "augment"):  # pyrender is for benchmarks only
         assert _choices(parser, cmd, "--renderer") == ["filament", "raycast"]
     assert _choices(parser, "bench", "render", "--renderer") == ["filament", "pyrender", "raycast"] == sorted(RENDERERS)
-    assert _choices(parser, "train", "--model") == ["mobilenet_gaze"] == list(MODELS)
+    assert _choices(parser, "train", "--model") == ["mobilenet_gaze", "mobilenet_gaze_wide"] == list(MODELS)
 
 
 def test_help_lists_the_formats(capsys):

@@ -25,6 +25,7 @@ TORCH_INSTALL_HINT = "the gaze model needs PyTorch: pip install torch==2.13.0 (o
 #: name -> factory(**options) returning a torch.nn.Module (imported when first used).
 MODELS = Registry("model", GazeAugError)
 MODELS.register("mobilenet_gaze", "gazeaug.models.mobilenet:mobilenet_gaze")
+MODELS.register("mobilenet_gaze_wide", "gazeaug.models.mobilenet:mobilenet_gaze_wide")
 
 
 def import_torch() -> Any:
