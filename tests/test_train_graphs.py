@@ -9,12 +9,12 @@ import warnings
 
 import numpy as np
 import pytest
+from helpers import synthetic_h5
 
 from gazeaug import train as train_module
 from gazeaug.models import create_model
 from gazeaug.train import TrainSettings, load_model, train
 from gazeaug.train_graphs import graph_model, quiet_stream_mismatch
-from tests.helpers import synthetic_h5
 
 torch = pytest.importorskip("torch")
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
