@@ -986,7 +986,11 @@ def _train(
             )
         _load_weights(model, _state_dict(ck, ckpt_path, "gazeaug checkpoint"), ckpt_path, "gazeaug checkpoint")
         try:
-            opt.load_state_dict(ck["optimizer"])
+            saved_opt = ck["optimizer"]
+            for g in saved_opt.get("param_groups", []):  # the kernel is this device's choice, not the checkpoint's
+                if isinstance(g, dict):
+                    g["fused"], g["foreach"] = device.type == "cuda", None
+            opt.load_state_dict(saved_opt)
             sched.load_state_dict(ck["scheduler"])
             log = [dict(r) for r in ck["log"]]
             start_epoch = int(ck["epoch"])
@@ -996,7 +1000,7 @@ def _train(
         if not 0 <= start_epoch <= n_epochs or len(log) != start_epoch:
             raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (epoch {start_epoch}, {len(log)} log rows)")
     cuda = device.type == "cuda"
-    graphed: Any = None  # full batches' forward and backward as CUDA graphs (train_graphs), captured at the first
+    graphed: Any = None  # full batches' forward and backward as CUDA graphs (train_graphs), from the first full one
     capture = cuda and cuda_graphs
     # the same batches either way (train_data): held on the device, read once, or streamed each epoch
     resident = hold_rows(data, device, face, preload)
@@ -1071,6 +1075,9 @@ def _train(
                 },
                 ckpt_path,
             )
+    if graphed is not None:  # the graphs and their memory go now, not at a later garbage collection
+        vars(graphed).pop("forward", None)  # PyTorch's replayed forward closes over the wrapper: a cycle
+        graphed = None
     if bar is not None:
         bar.close()
     _save(

@@ -4,7 +4,7 @@ Why: the default gaze model is small, so on a GPU its step is bound by the host 
 about 400 kernels one by one, not by the GPU. Measured on an NVIDIA H200 (2026-11-28,
 ``benchmarks/bench_step.py``): at batch 256 the kernels of an eager step kept the GPU busy
 12 % of the step's wall time; replaying the model's forward and backward as CUDA graphs
-(``torch.cuda.make_graphed_callables``) took the whole step from about 20k to 61-69k samples/s.
+(``torch.cuda.make_graphed_callables``) took the whole step from 20-27k to 54-69k samples/s (2.5-3.1 x).
 
 What is replayed: the model's forward and backward for batches of the captured shape (a full
 batch), in train mode, under bfloat16 autocast. Anything else (the last, shorter batch of an
@@ -63,6 +63,7 @@ def graph_model(model: Any, sample_args: tuple[Any, ...]) -> Any | None:
             return self.inner(*args)
 
     wrapper = _Forward(model)
+    stream = torch.cuda.current_stream()  # a failed capture can leave its side stream current: put back
     static = tuple(a.detach().clone(memory_format=torch.preserve_format) for a in sample_args)
     saved = [b.detach().clone() for b in model.buffers()]
     try:
@@ -70,8 +71,12 @@ def graph_model(model: Any, sample_args: tuple[Any, ...]) -> Any | None:
         with torch.autocast("cuda", dtype=torch.bfloat16, cache_enabled=False), quiet_stream_mismatch():
             return torch.cuda.make_graphed_callables(wrapper, static, allow_unused_input=True)
     except Exception as exc:  # an operation a graph cannot hold (a host sync, say): eager is still right
+        torch.cuda.set_stream(stream)
+        cause: BaseException = exc
+        while cause.__context__ is not None:  # the first error, not "failed due to a previous error"
+            cause = cause.__context__
         warnings.warn(
-            f"training without CUDA graphs: the model could not be captured ({exc.__class__.__name__}: {exc})",
+            f"training without CUDA graphs: the model could not be captured ({cause.__class__.__name__}: {cause})",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -91,7 +96,7 @@ def quiet_stream_mismatch(active: bool = True) -> Iterator[None]:
     (replayed or eager) hand them gradients from another stream: PyTorch synchronises the two,
     as it must, and warns that the mismatch may be unintended. Here it is intended (PyTorch's
     message says to switch the warning off then); the synchronisation stays, and is in the
-    measured speed. Switched back on after.
+    measured speed. Set back to what it was after (on where PyTorch cannot say).
     ``active`` False: nothing changes.
     """
     torch = import_torch()
@@ -99,8 +104,10 @@ def quiet_stream_mismatch(active: bool = True) -> Iterator[None]:
     if not active or switch is None:  # older PyTorch: no such warning
         yield
         return
+    getter = getattr(torch._C, "_warn_on_accumulate_grad_stream_mismatch", None)
+    before = bool(getter()) if getter is not None else True
     switch(False)
     try:
         yield
     finally:
-        switch(True)
+        switch(before)
