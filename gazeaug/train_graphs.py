@@ -48,9 +48,9 @@ def graph_model(model: Any, sample_args: tuple[Any, ...]) -> Any | None:
         model cannot be captured (a warning says why; train eagerly then).
     """
     torch = import_torch()
-    devices = sorted({str(a.device) for a in sample_args})
     if not all(a.is_cuda for a in sample_args):
-        raise ValueError(f"graph_model: expected the sample inputs on a CUDA device, got them on {', '.join(devices)}")
+        devices = ", ".join(sorted({str(a.device) for a in sample_args}))
+        raise ValueError(f"graph_model: expected the sample inputs on a CUDA device, got them on {devices}")
 
     class _Forward(torch.nn.Module):  # type: ignore[misc,name-defined]
         """A wrapper whose forward the capture replaces, so ``model`` itself keeps its own."""

@@ -43,7 +43,7 @@ def test_quiet_stream_mismatch_switches_the_warning_back_on():
         with pytest.raises(KeyError), quiet_stream_mismatch():
             assert seen == [False]
             raise KeyError("inside")
-    assert seen[0] is False and len(seen) == 2  # off inside, then back to what it was
+    assert seen == [False, True]  # off inside, then back to what it was (on, PyTorch's default)
 
 
 def test_quiet_stream_mismatch_keeps_a_users_choice():
@@ -168,3 +168,35 @@ def test_cli_no_cuda_graphs_reaches_train(tmp_path, monkeypatch):
         out = tmp_path / f"m{len(extra)}.pt"
         assert main(["train", str(h5), "-o", str(out), "--epochs", "1", "--quiet", "--device", "cpu", *extra]) == 0
     assert seen == [True, False]
+
+
+def test_resume_takes_this_devices_optimizer_kernel(tmp_path, monkeypatch):
+    """A checkpoint written on CUDA (fused AdamW recorded in its groups) resumes on the CPU without the fused kernel."""
+    h5 = synthetic_h5(tmp_path / "t.h5", n=64)
+    s = TrainSettings(epochs=2, batch_size=32, device="cpu")
+    real_save = train_module._save
+
+    def save_then_die(obj, path):
+        real_save(obj, path)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train_module, "_save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        train(h5, tmp_path / "r.pt", s, progress=False)
+    monkeypatch.setattr(train_module, "_save", real_save)
+    ckpt = tmp_path / "r.ckpt.pt"
+    ck = torch.load(ckpt, weights_only=True)
+    for g in ck["optimizer"]["param_groups"]:
+        g["fused"] = True  # as a CUDA run writes it
+    torch.save(ck, ckpt)
+    flags = []
+    real_step = torch.optim.AdamW.step
+
+    def step(self, *args, **kwargs):
+        flags.append(self.param_groups[0]["fused"])
+        return real_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    log = train(h5, tmp_path / "r.pt", s, resume=True, progress=False)
+    assert [r["epoch"] for r in log] == [1, 2]
+    assert flags == [False, False]  # epoch 2's two steps, with the CPU's kernel
