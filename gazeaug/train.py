@@ -52,7 +52,7 @@ from .models.preprocess import (
 from .models.shift import MAX_SHIFT_AVERAGE_PX, shift_average_px_of
 from .normalize import NormalizationSettings
 from .train_augment import TrainAugment, augment_generator
-from .train_data import check_preload, epoch_batches, hold_rows, prefetch_batches, train_inputs
+from .train_data import check_preload, epoch_batches, hold_rows, placeholder_batch, prefetch_batches, train_inputs
 from .train_graphs import graph_model, quiet_stream_mismatch
 
 __all__ = [
@@ -1001,8 +1001,7 @@ def _train(
         if not 0 <= start_epoch <= n_epochs or len(log) != start_epoch:
             raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (epoch {start_epoch}, {len(log)} log rows)")
     cuda = device.type == "cuda"
-    graphed: Any = None  # full batches' forward and backward as CUDA graphs (train_graphs), from the first full one
-    capture = cuda and cuda_graphs
+    graphed: Any = None  # full batches' forward and backward as CUDA graphs (train_graphs)
     # the same batches either way (train_data): held on the device, read once, or streamed each epoch
     resident = hold_rows(data, device, face, preload)
     bar = None
@@ -1013,6 +1012,13 @@ def _train(
             total=n_epochs * len(data), initial=start_epoch * len(data), unit="sample", desc="train", dynamic_ncols=True
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
+    if cuda and cuda_graphs and start_epoch < n_epochs and len(data) >= batch_size:
+        # captured before any epoch's reading thread runs, on a placeholder batch (train_data)
+        model.train()
+        *eyes_head, _, face_in = train_inputs(
+            placeholder_batch(data, batch_size, face=face), device, s.augment, s.input_mode, torch.Generator(device)
+        )
+        graphed = graph_model(model, tuple(eyes_head) if face_in is None else (*eyes_head, face_in))
     with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
         for epoch in range(start_epoch, n_epochs):
             rng = np.random.default_rng([s.seed, epoch])
@@ -1025,8 +1031,6 @@ def _train(
                     n = len(tensors["gaze"])
                     a, b, c, y, f = train_inputs(tensors, device, s.augment, s.input_mode, gen)
                     inputs = (a, b, c) if f is None else (a, b, c, f)
-                    if capture and n == batch_size:
-                        graphed, capture = graph_model(model, inputs), False
                     call = graphed if graphed is not None and n == batch_size else model
                     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda, cache_enabled=False):
                         pred = call(*inputs)

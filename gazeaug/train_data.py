@@ -40,6 +40,7 @@ __all__ = [
     "ResidentSetTooLarge",
     "hold_rows",
     "epoch_batches",
+    "placeholder_batch",
     "memory_available",
     "resident_bytes",
     "byte_size",
@@ -316,6 +317,37 @@ def epoch_batches(
     with contextlib.closing(prefetch_batches(data, batch_size, rng, pin=pin, face=face)) as it:
         for _, tensors in it:
             yield tensors
+
+
+def placeholder_batch(data: H5TrainingSet, batch_size: int, *, face: bool = False) -> dict[str, Any]:
+    """A full batch of zeros shaped as :func:`epoch_batches` gives ``data``'s (no row is read).
+
+    What a CUDA graph capture needs before an epoch starts (:func:`gazeaug.train_graphs.graph_model`
+    copies only shapes, dtypes and layouts; the values merely warm it up): capturing then, rather
+    than at the epoch's first batch, keeps the capture clear of the streamed path's reading thread,
+    whose pinned-memory allocations are CUDA calls a capture in progress may refuse.
+
+    Returns:
+        ``{"eyes": uint8 (2B, H, W, 3), "head_pose": float32 (B, 2), "gaze": float32 (B, 2)}`` on
+        the CPU, contiguous, and with ``face`` ``"face": uint8 (B, Hf, Wf, 3)``; B = ``batch_size``,
+        (W, H) = ``data.patch_size_wh``, (Wf, Hf) = ``data.face_patch_size_wh``.
+
+    Raises:
+        GazeAugError: ``face`` asked of a set without face patches.
+    """
+    torch = import_torch()
+    w, h = data.patch_size_wh
+    out = {
+        "eyes": torch.zeros((2 * batch_size, h, w, 3), dtype=torch.uint8),
+        "head_pose": torch.zeros((batch_size, 2), dtype=torch.float32),
+        "gaze": torch.zeros((batch_size, 2), dtype=torch.float32),
+    }
+    if face:
+        if data.face_patch_size_wh is None:
+            raise GazeAugError(f"{data.path}: expected face patches for a face model's batch, the set has none")
+        fw, fh = data.face_patch_size_wh
+        out["face"] = torch.zeros((batch_size, fh, fw, 3), dtype=torch.uint8)
+    return out
 
 
 def train_inputs(

@@ -116,6 +116,53 @@ def test_graphed_face_model_trains(tmp_path):
 
 
 @cuda
+def test_streamed_training_is_captured(tmp_path):
+    """Streamed from the file (a reading thread pinning memory): the capture, made before the
+    epoch's reader starts, holds (no fallback), and trains to a finite loss."""
+    h5 = synthetic_h5(tmp_path / "s.h5", n=600)
+    s = TrainSettings(epochs=2, batch_size=128, device="cuda", seed=1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        log = train(h5, tmp_path / "s.pt", s, progress=False, preload="no")
+    assert not [w for w in caught if "without CUDA graphs" in str(w.message)]
+    assert np.isfinite([r["train_loss"] for r in log]).all()
+
+
+@pytest.mark.parametrize("face", [False, True])
+@pytest.mark.parametrize("preload", ["yes", "no"])
+def test_placeholder_batch_is_shaped_as_a_real_one(tmp_path, face, preload):
+    """The capture's placeholder gives the model inputs of a real full batch's shapes, dtypes and
+    strides (what a graph fixes), for held and streamed sets, with a face patch and without."""
+    from gazeaug.train_augment import TrainAugment, augment_generator
+    from gazeaug.train_data import epoch_batches, hold_rows, placeholder_batch, train_inputs
+
+    h5 = synthetic_h5(tmp_path / "p.h5", n=70, face_size=(20, 16) if face else None)
+    data = train_module.H5TrainingSet(h5)
+    cpu = torch.device("cpu")
+    resident = hold_rows(data, cpu, face, preload)
+    assert (resident is None) is (preload == "no")
+    augment = TrainAugment(mirror=0.5)
+    real = next(iter(epoch_batches(data, resident, 32, np.random.default_rng(0), face=face)))
+    fake = placeholder_batch(data, 32, face=face)
+    assert set(fake) == set(real) and not torch.count_nonzero(fake["eyes"])
+    want = train_inputs(real, cpu, augment, "rgb", augment_generator(0, 0))
+    got = train_inputs(fake, cpu, augment, "rgb", torch.Generator())
+    assert (want[4] is None) is (got[4] is None) is (not face)
+    for w, g in zip(want, got, strict=True):
+        if w is not None:
+            assert (g.shape, g.dtype, g.stride()) == (w.shape, w.dtype, w.stride())
+
+
+def test_placeholder_batch_refuses_a_face_the_set_lacks(tmp_path):
+    from gazeaug.errors import GazeAugError
+    from gazeaug.train_data import placeholder_batch
+
+    data = train_module.H5TrainingSet(synthetic_h5(tmp_path / "n.h5", n=8))
+    with pytest.raises(GazeAugError, match="expected face patches for a face model's batch, the set has none"):
+        placeholder_batch(data, 4, face=True)
+
+
+@cuda
 def test_graph_model_falls_back_with_a_warning_and_leaves_the_model_as_it_was():
     """A model that cannot be captured (a host sync in its forward) gives None and one warning.
 
