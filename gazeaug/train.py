@@ -793,7 +793,8 @@ def train(
 
     Raises:
         GazeAugError: bad files or settings; an unfinished run's checkpoint with ``keep_unfinished``
-            (``remedy="resume"``).
+            (``remedy="resume"``); the device out of memory (``torch.OutOfMemoryError``, what to change
+            said; the epochs finished before it stay in the checkpoint).
     """
     from facemesh.outputs import output_lock
 
@@ -812,9 +813,19 @@ def train(
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
         if keep_unfinished and not resume:
             _refuse_unfinished(out)
-        return _train(
-            train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given), preload, cuda_graphs
-        )
+        oom = getattr(import_torch(), "OutOfMemoryError", RuntimeError)
+        try:
+            return _train(
+                train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given), preload, cuda_graphs
+            )
+        except oom as exc:  # the device's memory, not a fault of the code: say what to change
+            if oom is RuntimeError and "out of memory" not in str(exc):
+                raise
+            first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else exc.__class__.__name__
+            raise GazeAugError(
+                f"out of memory while training ({first}): try a smaller batch size (--batch-size), the rows streamed "
+                "rather than held (--preload no), or a smaller model"
+            ) from exc
 
 
 def unfinished_checkpoint(output: str | Path) -> Path | None:

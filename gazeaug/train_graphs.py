@@ -45,7 +45,9 @@ def graph_model(model: Any, sample_args: tuple[Any, ...]) -> Any | None:
         A callable taking inputs of exactly those shapes and dtypes (call it under
         ``torch.autocast("cuda", dtype=torch.bfloat16, cache_enabled=False)``); its outputs live in
         the graph's memory and are overwritten by the next call, so copy what is kept. None when the
-        model cannot be captured (a warning says why; train eagerly then).
+        model cannot be captured (a warning says why; train eagerly then). An out-of-memory error of
+        the capture is one such case: the capture holds a full batch's activations in a pool of its
+        own beside the warm-up's, so eager steps may still fit (where they do not, ``train`` says so).
     """
     torch = import_torch()
     if not all(a.is_cuda for a in sample_args):

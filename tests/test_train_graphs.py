@@ -247,3 +247,32 @@ def test_resume_takes_this_devices_optimizer_kernel(tmp_path, monkeypatch):
     log = train(h5, tmp_path / "r.pt", s, resume=True, progress=False)
     assert [r["epoch"] for r in log] == [1, 2]
     assert flags == [False, False]  # epoch 2's two steps, with the CPU's kernel
+
+
+def test_out_of_memory_is_one_line_that_says_what_to_change(tmp_path, monkeypatch, capsys):
+    """The device out of memory mid-run (epoch 2): exit 2, one line with what to change; epoch 1 stays
+    checkpointed and resumable, no model file is written."""
+    from gazeaug.cli import main
+
+    h5 = synthetic_h5(tmp_path / "t.h5", n=64)
+    out = tmp_path / "m.pt"
+    real_step = torch.optim.AdamW.step
+    steps = []
+
+    def step(self, *args, **kwargs):
+        steps.append(1)
+        if len(steps) == 3:  # the first step of epoch 2 (2 steps an epoch)
+            raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB")
+        return real_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", step)
+    argv = ["train", str(h5), "-o", str(out), "--epochs", "2", "--batch-size", "32", "--device", "cpu", "--quiet"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "out of memory while training (CUDA out of memory. Tried to allocate 2.00 GiB)" in err[0]
+    assert "--batch-size" in err[0] and "Traceback" not in err[0]
+    assert not out.exists()
+    assert int(torch.load(out.with_suffix(".ckpt.pt"), weights_only=True)["epoch"]) == 1
+    monkeypatch.setattr(torch.optim.AdamW, "step", real_step)
+    assert main([*argv, "--resume"]) == 0 and out.exists()
