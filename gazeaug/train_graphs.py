@@ -15,6 +15,14 @@ Capturing runs the model's forward and backward a few times on the sample batch 
 ``make_graphed_callables`` needs); the BatchNorm running statistics those passes would move are
 put back, so a graphed run trains as an eager one (the same kernels; CUDA's floating point
 results are not bitwise reproducible either way).
+
+What a model of your own should know (``TrainSettings.model`` registered by you): a replay runs
+the kernels the capture recorded, not the model's Python. Code in its forward that is not a CUDA
+kernel (forward hooks, prints, counters, branches on a tensor's value) runs during the capture's
+passes only; a branch on a value fixes the branch taken then. Random operations (dropout) draw
+anew at each replay (PyTorch's CUDA generator is registered with the graph). A model with such
+code, or one that cannot be captured at all, trains as it should with ``cuda_graphs=False``
+(``gazeaug train --no-cuda-graphs``).
 """
 
 from __future__ import annotations
