@@ -43,6 +43,7 @@ REMEDIES = {
     "landmarks": "pass --landmarks with the model's own points",
     "face_model": "pass --face-model (the 3D points your landmarks correspond to)",
     "stream": "pass --preload no to stream them from the file instead",
+    "memory": "pass a smaller --batch-size, or --preload no where the rows were held (a new batch size starts over)",
     "keypoints": f"pass --keypoints (a layout: {', '.join(KEYPOINTS)}; or the indices RO,RI,LI,LO[,MR,ML])",
 }
 

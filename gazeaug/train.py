@@ -437,6 +437,20 @@ def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device
         )
 
 
+def _capture(model: Any, data: H5TrainingSet, batch_size: int, face: bool, device: Any, s: TrainSettings) -> Any:
+    """The CUDA graphs of ``model``'s full batches (:func:`gazeaug.train_graphs.graph_model`), or None.
+
+    ``model`` is put in train mode and captured on a placeholder batch of ``data``'s shapes
+    (:func:`gazeaug.train_data.placeholder_batch`) through the training's own input path; the
+    placeholder's inputs are freed on return.
+    """
+    torch = import_torch()
+    model.train()
+    batch = placeholder_batch(data, batch_size, face=face)
+    left, right, head, _, face_in = train_inputs(batch, device, s.augment, s.input_mode, torch.Generator(device))
+    return graph_model(model, (left, right, head) if face_in is None else (left, right, head, face_in))
+
+
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
     errs = []
     keys = H5TrainingSet.batch_keys(uses_face(model))
@@ -793,8 +807,8 @@ def train(
 
     Raises:
         GazeAugError: bad files or settings; an unfinished run's checkpoint with ``keep_unfinished``
-            (``remedy="resume"``); the device out of memory (``torch.OutOfMemoryError``, what to change
-            said; the epochs finished before it stay in the checkpoint).
+            (``remedy="resume"``); the GPU or the host out of memory (``remedy="memory"``: what needs
+            less said, and the checkpoint of the epochs finished before it named).
     """
     from facemesh.outputs import output_lock
 
@@ -813,19 +827,34 @@ def train(
     with output_lock(out):  # held for the whole run: a second run on the same model is refused
         if keep_unfinished and not resume:
             _refuse_unfinished(out)
-        oom = getattr(import_torch(), "OutOfMemoryError", RuntimeError)
         try:
             return _train(
                 train_path, out, s, val_path, val_subjects, resume, progress, frozenset(given), preload, cuda_graphs
             )
-        except oom as exc:  # the device's memory, not a fault of the code: say what to change
-            if oom is RuntimeError and "out of memory" not in str(exc):
+        except (RuntimeError, MemoryError) as exc:  # torch.OutOfMemoryError is a RuntimeError
+            if not _out_of_memory(exc):
                 raise
             first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else exc.__class__.__name__
-            raise GazeAugError(
-                f"out of memory while training ({first}): try a smaller batch size (--batch-size), the rows streamed "
-                "rather than held (--preload no), or a smaller model"
-            ) from exc
+        # raised here, outside the handler: the failed run's frames (model, held rows, graphs) are freed now
+        ckpt = unfinished_checkpoint(out)
+        kept = f"; the finished epochs are kept in {ckpt} (resumable with the same settings)" if ckpt else ""
+        raise GazeAugError(
+            f"out of memory while training ({first}): a smaller batch size, the rows streamed rather than "
+            f"held, or a smaller model needs less{kept}",
+            remedy="memory",
+        )
+
+
+#: Phrases of the out-of-memory errors PyTorch raises as plain RuntimeErrors (the host's allocator,
+#: cuBLAS's and cuDNN's workspaces, a pinned-memory allocation); torch.OutOfMemoryError is matched by type.
+_OOM_PHRASES = ("out of memory", "can't allocate memory", "CUBLAS_STATUS_ALLOC_FAILED", "CUDNN_STATUS_ALLOC_FAILED")
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` says the device or the host ran out of memory."""
+    torch = import_torch()
+    oom = getattr(torch, "OutOfMemoryError", None) or torch.cuda.OutOfMemoryError
+    return isinstance(exc, (oom, MemoryError)) or any(p in str(exc) for p in _OOM_PHRASES)
 
 
 def unfinished_checkpoint(output: str | Path) -> Path | None:
@@ -1023,14 +1052,9 @@ def _train(
             total=n_epochs * len(data), initial=start_epoch * len(data), unit="sample", desc="train", dynamic_ncols=True
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
-    if cuda and cuda_graphs and start_epoch < n_epochs and len(data) >= batch_size:
-        # captured before any epoch's reading thread runs, on a placeholder batch (train_data)
-        model.train()
-        *eyes_head, _, face_in = train_inputs(
-            placeholder_batch(data, batch_size, face=face), device, s.augment, s.input_mode, torch.Generator(device)
-        )
-        graphed = graph_model(model, tuple(eyes_head) if face_in is None else (*eyes_head, face_in))
     with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
+        if cuda and cuda_graphs and start_epoch < n_epochs and len(data) >= batch_size:
+            graphed = _capture(model, data, batch_size, face, device, s)  # before any epoch's reading thread runs
         for epoch in range(start_epoch, n_epochs):
             rng = np.random.default_rng([s.seed, epoch])
             gen = augment_generator(s.seed, epoch, device)

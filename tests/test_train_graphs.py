@@ -116,23 +116,33 @@ def test_graphed_face_model_trains(tmp_path):
 
 
 @cuda
-def test_streamed_training_is_captured(tmp_path):
+def test_streamed_training_is_captured(tmp_path, monkeypatch):
     """Streamed from the file (a reading thread pinning memory): the capture, made before the
-    epoch's reader starts, holds (no fallback), and trains to a finite loss."""
+    epoch's reader starts, holds (made once, no fallback), and trains to a finite loss."""
     h5 = synthetic_h5(tmp_path / "s.h5", n=600)
+    made = []
+
+    def spy(model, args):
+        made.append(graph_model(model, args))
+        return made[-1]
+
+    monkeypatch.setattr(train_module, "graph_model", spy)
     s = TrainSettings(epochs=2, batch_size=128, device="cuda", seed=1)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         log = train(h5, tmp_path / "s.pt", s, progress=False, preload="no")
     assert not [w for w in caught if "without CUDA graphs" in str(w.message)]
+    assert len(made) == 1 and made[0] is not None
     assert np.isfinite([r["train_loss"] for r in log]).all()
 
 
 @pytest.mark.parametrize("face", [False, True])
 @pytest.mark.parametrize("preload", ["yes", "no"])
-def test_placeholder_batch_is_shaped_as_a_real_one(tmp_path, face, preload):
-    """The capture's placeholder gives the model inputs of a real full batch's shapes, dtypes and
-    strides (what a graph fixes), for held and streamed sets, with a face patch and without."""
+@pytest.mark.parametrize("augmented", [False, True])
+def test_placeholder_batch_is_shaped_as_a_real_one(tmp_path, face, preload, augmented):
+    """The capture's placeholder is a real full batch's shapes, dtypes and strides (what a graph
+    fixes), and so are the model inputs made of it, for held and streamed sets, with a face patch
+    and without, augmented (mirrored too) or not."""
     from gazeaug.train_augment import TrainAugment, augment_generator
     from gazeaug.train_data import epoch_batches, hold_rows, placeholder_batch, train_inputs
 
@@ -141,10 +151,13 @@ def test_placeholder_batch_is_shaped_as_a_real_one(tmp_path, face, preload):
     cpu = torch.device("cpu")
     resident = hold_rows(data, cpu, face, preload)
     assert (resident is None) is (preload == "no")
-    augment = TrainAugment(mirror=0.5)
+    augment = TrainAugment(mirror=0.5) if augmented else TrainAugment(enabled=False)
     real = next(iter(epoch_batches(data, resident, 32, np.random.default_rng(0), face=face)))
     fake = placeholder_batch(data, 32, face=face)
     assert set(fake) == set(real) and not torch.count_nonzero(fake["eyes"])
+    for k, w in real.items():
+        g = fake[k]
+        assert (g.shape, g.dtype, g.stride(), g.device) == (w.shape, w.dtype, w.stride(), w.device), k
     want = train_inputs(real, cpu, augment, "rgb", augment_generator(0, 0))
     got = train_inputs(fake, cpu, augment, "rgb", torch.Generator())
     assert (want[4] is None) is (got[4] is None) is (not face)
@@ -250,8 +263,8 @@ def test_resume_takes_this_devices_optimizer_kernel(tmp_path, monkeypatch):
 
 
 def test_out_of_memory_is_one_line_that_says_what_to_change(tmp_path, monkeypatch, capsys):
-    """The device out of memory mid-run (epoch 2): exit 2, one line with what to change; epoch 1 stays
-    checkpointed and resumable, no model file is written."""
+    """The device out of memory mid-run (epoch 2): exit 2, one line saying what needs less and where
+    epoch 1 is kept; no model file; the run resumes from that checkpoint with the same settings."""
     from gazeaug.cli import main
 
     h5 = synthetic_h5(tmp_path / "t.h5", n=64)
@@ -271,8 +284,52 @@ def test_out_of_memory_is_one_line_that_says_what_to_change(tmp_path, monkeypatc
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert "out of memory while training (CUDA out of memory. Tried to allocate 2.00 GiB)" in err[0]
-    assert "--batch-size" in err[0] and "Traceback" not in err[0]
+    assert f"kept in {out.with_suffix('.ckpt.pt')}" in err[0] and "pass a smaller --batch-size" in err[0]
     assert not out.exists()
     assert int(torch.load(out.with_suffix(".ckpt.pt"), weights_only=True)["epoch"]) == 1
     monkeypatch.setattr(torch.optim.AdamW, "step", real_step)
     assert main([*argv, "--resume"]) == 0 and out.exists()
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory: 8 GB"),
+        RuntimeError("CUDA error: CUBLAS_STATUS_ALLOC_FAILED when calling `cublasCreate(handle)`"),
+        MemoryError(),
+    ],
+)
+def test_out_of_memory_raised_as_plain_errors_is_said_so(tmp_path, monkeypatch, error):
+    """The host's allocator and cuBLAS say 'out of memory' in RuntimeErrors of their own: the same
+    typed error (remedy 'memory'), in the first epoch (no checkpoint to name)."""
+    from gazeaug.errors import GazeAugError
+
+    def fail(self, *args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", fail)
+    with pytest.raises(GazeAugError, match="out of memory while training") as caught:
+        train(
+            synthetic_h5(tmp_path / "t.h5", n=64),
+            tmp_path / "m.pt",
+            TrainSettings(epochs=1, batch_size=32),
+            progress=False,
+        )
+    assert caught.value.remedy == "memory" and "kept in" not in str(caught.value)
+
+
+def test_other_runtime_errors_pass_through_unchanged(tmp_path, monkeypatch):
+    error = RuntimeError("mat1 and mat2 shapes cannot be multiplied (32x7 and 8x2)")
+
+    def fail(self, *args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", fail)
+    with pytest.raises(RuntimeError) as caught:
+        train(
+            synthetic_h5(tmp_path / "t.h5", n=64),
+            tmp_path / "m.pt",
+            TrainSettings(epochs=1, batch_size=32),
+            progress=False,
+        )
+    assert caught.value is error
