@@ -19,7 +19,8 @@ results are not bitwise reproducible either way).
 What a model of your own should know (``TrainSettings.model`` registered by you): a replay runs
 the kernels the capture recorded, not the model's Python. Code in its forward that is not a CUDA
 kernel (forward hooks, prints, counters, branches on a tensor's value) runs during the capture's
-passes only; a branch on a value fixes the branch taken then. Random operations (dropout) draw
+passes only; a branch on a value fixes the branch taken then (``train`` captures on a
+placeholder batch of zeros, :func:`gazeaug.train_data.placeholder_batch`). Random operations (dropout) draw
 anew at each replay (PyTorch's CUDA generator is registered with the graph). A model with such
 code, or one that cannot be captured at all, trains as it should with ``cuda_graphs=False``
 (``gazeaug train --no-cuda-graphs``).
