@@ -419,8 +419,8 @@ def _check_fits(model: Any, settings: TrainSettings, data: H5TrainingSet, device
         with torch.no_grad():
             out = model(eye, eye, head, face) if face is not None else model(eye, eye, head)
     except (RuntimeError, TypeError) as exc:
-        if isinstance(exc, torch.cuda.OutOfMemoryError) or "CUDA" in str(exc):
-            raise  # the device's trouble, not the model's fit to the patches
+        if _out_of_memory(exc) or "CUDA" in str(exc):
+            raise  # the device's trouble, not the model's fit to the patches (train() phrases an out of memory)
         sizes = f"eye patches {w} x {h} px" + ("" if face is None else f", face patches {fw} x {fh} px")
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
         raise GazeAugError(

@@ -333,3 +333,22 @@ def test_other_runtime_errors_pass_through_unchanged(tmp_path, monkeypatch):
             progress=False,
         )
     assert caught.value is error
+
+
+def test_out_of_memory_in_the_fit_check_is_not_called_a_misfit(tmp_path, monkeypatch):
+    """The host out of memory in the model's first call (the two-sample fit check before training)
+    is said as out of memory, not as a model that cannot read the set's patches."""
+    from gazeaug.errors import GazeAugError
+
+    def forward(*args, **kwargs):
+        raise RuntimeError("[enforce fail at alloc_cpu.cpp:117] DefaultCPUAllocator: can't allocate memory: 8 GB")
+
+    def create(name, **options):
+        model = create_model(name, **options)
+        model.forward = forward  # an instance attribute: nn.Module's call finds it first
+        return model
+
+    monkeypatch.setattr(train_module, "create_model", create)
+    with pytest.raises(GazeAugError, match="out of memory while training") as caught:
+        train(synthetic_h5(tmp_path / "t.h5", n=64), tmp_path / "m.pt", TrainSettings(epochs=1), progress=False)
+    assert "cannot read" not in str(caught.value)
