@@ -784,7 +784,7 @@ def train(
         train_path: training set (.h5).
         output: the model file; ``.ckpt.pt``, ``.log.csv`` and ``.curves.png`` go beside it.
         settings: hyper-parameters.
-        val_path: a validation set (.h5).
+        val_path: a validation set (.h5), read after each epoch in batches of the training's batch size.
         val_subjects: instead, hold these subjects of the training set out for validation.
         resume: continue from ``output``'s checkpoint.
         progress: show a progress bar.
@@ -1095,7 +1095,8 @@ def _train(
                 "epoch": epoch + 1,
                 "train_loss": float(np.dot(step_losses, sizes) / seen),
                 "train_error_deg": float(train_errors.mean()),
-                "val_error_deg": _evaluate_set(model, val, 512) if val is not None else None,
+                # the training's own batch size: --batch-size is the one remedy an out of memory names
+                "val_error_deg": _evaluate_set(model, val, batch_size) if val is not None else None,
                 "seconds": round(seconds, 3),
                 "samples_per_second": round(seen / seconds, 1),
             }

@@ -352,3 +352,20 @@ def test_out_of_memory_in_the_fit_check_is_not_called_a_misfit(tmp_path, monkeyp
     with pytest.raises(GazeAugError, match="out of memory while training") as caught:
         train(synthetic_h5(tmp_path / "t.h5", n=64), tmp_path / "m.pt", TrainSettings(epochs=1), progress=False)
     assert "cannot read" not in str(caught.value)
+
+
+def test_validation_reads_in_the_training_batch_size(tmp_path, monkeypatch):
+    """The validation after each epoch runs at the training's batch size, so ``--batch-size``, the
+    remedy an out of memory names, bounds it too (it read 512 rows at a time whatever the batch)."""
+    seen = []
+    real = train_module._evaluate_set
+
+    def spy(model, data, batch_size):
+        seen.append(batch_size)
+        return real(model, data, batch_size)
+
+    monkeypatch.setattr(train_module, "_evaluate_set", spy)
+    h5 = synthetic_h5(tmp_path / "t.h5", n=64)
+    log = train(h5, tmp_path / "m.pt", TrainSettings(epochs=2, batch_size=8), val_subjects=["b"], progress=False)
+    assert seen == [8, 8]
+    assert all(r["val_error_deg"] is not None for r in log)
