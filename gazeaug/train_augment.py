@@ -20,6 +20,10 @@ gamma           ``255 (x / 255) ** g``, ``log g`` in                        0.25
 noise           Gaussian, standard deviation in ``[0, noise]`` grey        4
                 levels, one draw per pixel, the same on the three
                 channels (luminance noise: a third of the draws)
+head pose       Gaussian noise of standard deviation ``head_pose_deg``      0 (off)
+                degrees on each angle of the head-pose input (not on
+                the label): test-time head poses come from PnP, off by
+                a few degrees; drawn after the patches' augmentation
 mirror          with probability ``mirror`` per sample, both patches        0 (off)
                 mirrored left-right and swapped (the mirrored left eye
                 is a right eye), the yaw of the gaze and of the head
@@ -62,7 +66,7 @@ from .errors import GazeAugError
 from .models import import_torch
 from .models.preprocess import eyes_to_float
 
-__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "mirror_samples", "translate_blur"]
+__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "jitter_head_pose", "mirror_samples", "translate_blur"]
 
 
 def _number(v: Any) -> bool:
@@ -92,6 +96,11 @@ class TrainAugment:
         mirror: probability that a sample is mirrored left-right (eyes swapped, yaws negated), in
             [0, 1] (default 0: off; on 1800 simulated images 0.5 read new people at 8.43 deg against
             8.60 without, one seed: within noise; docs/model.md).
+        head_pose_deg: standard deviation of the Gaussian noise added to each angle (pitch, yaw) of
+            the head-pose input, degrees, in [0, 20] (default 0: off). The gaze label is left as it
+            is: the noise stands for the error of the head pose a test image gets from PnP against a
+            generic face (2-4 deg on issue 13's simulated people, docs/model.md), which a model
+            trained on exact poses takes at face value.
 
     Raises:
         GazeAugError: a value of the wrong type or outside its range.
@@ -106,6 +115,7 @@ class TrainAugment:
     gamma: float = 0.25
     noise: float = 4.0
     mirror: float = 0.0
+    head_pose_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
@@ -122,6 +132,7 @@ class TrainAugment:
             "gamma": (0.0, 4.0, True, ""),
             "noise": (0.0, 64.0, True, " grey levels"),
             "mirror": (0.0, 1.0, True, ""),
+            "head_pose_deg": (0.0, 20.0, True, " degrees"),
         }
         for name, (lo, hi, closed, unit) in bounds.items():
             v = getattr(self, name)
@@ -224,6 +235,28 @@ def translate_blur(
     x = fn.conv2d(x, wh.repeat_interleave(c, 0).view(n * c, 1, 1, -1), groups=n * c)
     x = fn.conv2d(x, wv.repeat_interleave(c, 0).view(n * c, 1, -1, 1), groups=n * c)
     return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
+
+
+def jitter_head_pose(head: Any, augment: TrainAugment, generator: Any) -> Any:
+    """The head-pose input with Gaussian noise of ``augment.head_pose_deg`` degrees on each angle.
+
+    Args:
+        head: float32 torch tensor (N, 2), radians (pitch, yaw), normalized face frame, on the
+            device that trains.
+        augment: the strengths.
+        generator: a ``torch.Generator`` on the same device (:func:`augment_generator`).
+
+    Returns:
+        A new float32 (N, 2) tensor, radians; ``head`` itself when the augmentation is off or the
+        strength is 0: then nothing is drawn, so runs that do not ask for it draw every other
+        augmentation exactly as before the option existed (the one exception to "a strength set
+        to 0 changes no other draw").
+    """
+    torch = import_torch()
+    if not augment.enabled or augment.head_pose_deg == 0 or head.shape[0] == 0:
+        return head
+    noise = torch.randn(tuple(head.shape), generator=generator, device=head.device, dtype=torch.float32)
+    return head + noise.mul_(math.radians(augment.head_pose_deg)).to(head.dtype)
 
 
 def mirror_samples(

@@ -30,7 +30,7 @@ from .errors import GazeAugError
 from .io_h5 import H5TrainingSet
 from .models import import_torch
 from .models.preprocess import scale_eyes
-from .train_augment import TrainAugment, augment_eyes, mirror_samples
+from .train_augment import TrainAugment, augment_eyes, jitter_head_pose, mirror_samples
 
 __all__ = [
     "PRELOAD_CHOICES",
@@ -360,7 +360,8 @@ def train_inputs(
     patches swapped and flipped, the yaws of the head pose and gaze negated, so the labels returned
     are the ones the model is given), the patches augmented
     (:func:`gazeaug.train_augment.augment_eyes`, with ``generator`` on ``device``), then converted by
-    the model's input mode (:func:`gazeaug.models.preprocess.scale_eyes`) on the device.
+    the model's input mode (:func:`gazeaug.models.preprocess.scale_eyes`) on the device, and the
+    head pose jittered (:func:`gazeaug.train_augment.jitter_head_pose`; off by default).
 
     Returns:
         left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians;
@@ -377,5 +378,6 @@ def train_inputs(
         x = scale_eyes(augment_eyes(eyes, augment, generator), input_mode)
         if face is not None:
             face = scale_eyes(augment_eyes(face, augment, generator), input_mode)
+        head = jitter_head_pose(head, augment, generator)  # last: nothing drawn when off
     n = x.shape[0] // 2
     return x[:n], x[n:], head, gaze, face

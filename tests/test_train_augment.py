@@ -33,6 +33,7 @@ from gazeaug.train_augment import (  # noqa: E402
     TrainAugment,
     augment_eyes,
     augment_generator,
+    jitter_head_pose,
     mirror_samples,
     translate_blur,
 )
@@ -326,7 +327,7 @@ def test_training_is_reproducible_and_old_checkpoints_say_what_to_do(tmp_path):
     # no auto_samples; resumed with the sizes left to None, it keeps its own (epochs 1, batch 16)
     train(h5, tmp_path / "p.pt", s, progress=False)
     ck = torch.load(tmp_path / "p.ckpt.pt", weights_only=True)
-    del ck["settings"]["augment"]["mirror"], ck["settings"]["auto_samples"]
+    del ck["settings"]["augment"]["mirror"], ck["settings"]["augment"]["head_pose_deg"], ck["settings"]["auto_samples"]
     torch.save(ck, tmp_path / "p.ckpt.pt")
     assert len(train(h5, tmp_path / "p.pt", TrainSettings(seed=3), resume=True, progress=False)) == 1
     # numpy numbers become plain ones (the model file's safe loader refuses numpy scalars)
@@ -507,3 +508,38 @@ def test_byte_sizes_in_words():
     assert td.byte_size(1024) == "1.0 KiB" and td.byte_size(3 * 2**20 + 2**19) == "3.5 MiB"
     assert td.byte_size(2**30 - 1) == "1024.0 MiB"  # just under a GiB, rounded: the unit is the one it is >= 1 of
     assert td.byte_size(5 * 2**30) == "5.0 GiB" and td.byte_size(2000 * 2**30) == "2000.0 GiB"
+
+
+def test_head_pose_jitter_has_the_asked_spread_and_leaves_the_rest_alone():
+    """Gaussian noise of head_pose_deg degrees on each angle (the sample spread of 20000 draws within
+    3 % of 3 deg = 0.05236 rad, the mean within 5 standard errors of 0); off, nothing is drawn."""
+    head = torch.full((20000, 2), 0.1)
+    g = augment_generator(5, 0)
+    out = jitter_head_pose(head, TrainAugment(head_pose_deg=3.0), g)
+    d = (out - head).double()
+    assert abs(float(d.std(dim=0)[0]) / 0.05236 - 1) < 0.03 and abs(float(d.std(dim=0)[1]) / 0.05236 - 1) < 0.03
+    assert float(d.mean(dim=0).abs().max()) < 5 * 0.05236 / 20000**0.5
+    assert abs(float(torch.corrcoef(d.T)[0, 1])) < 0.05  # the two angles drawn independently
+    assert torch.equal(head, torch.full((20000, 2), 0.1))  # the input left as it was
+    for off in (TrainAugment(), TrainAugment(enabled=False, head_pose_deg=3.0)):
+        g0, g1 = augment_generator(5, 0), augment_generator(5, 0)
+        assert jitter_head_pose(head, off, g0) is head
+        assert torch.equal(torch.rand(4, generator=g0), torch.rand(4, generator=g1))  # nothing drawn
+    with pytest.raises(GazeAugError, match="head_pose_deg: expected a number in \\[0, 20\\] degrees, got 25"):
+        TrainAugment(head_pose_deg=25)
+
+
+def test_head_pose_jitter_reaches_the_model_input_not_the_label():
+    from gazeaug.train_data import train_inputs
+
+    rng = np.random.default_rng(0)
+    batch = {
+        "eyes": torch.from_numpy(rng.integers(0, 256, (16, 36, 60, 3), dtype=np.uint8)),
+        "head_pose": torch.zeros((8, 2)),
+        "gaze": torch.full((8, 2), 0.2),
+    }
+    plain = train_inputs(batch, "cpu", TrainAugment(), "rgb", augment_generator(1, 0))
+    jit = train_inputs(batch, "cpu", TrainAugment(head_pose_deg=2.0), "rgb", augment_generator(1, 0))
+    assert torch.equal(plain[0], jit[0]) and torch.equal(plain[1], jit[1])  # the patches drawn as before
+    assert torch.equal(plain[3], jit[3]) and torch.equal(jit[3], torch.full((8, 2), 0.2))  # labels untouched
+    assert torch.equal(plain[2], torch.zeros((8, 2))) and float(jit[2].abs().min()) > 0
