@@ -249,9 +249,15 @@ def run_command(prog: str, command: Callable[[], int | None], interrupted: Calla
     Exit codes: 0 done; 2 bad input (the library's typed errors, phrased with
     :func:`error_line`; a file the system would not read or write); 130 Ctrl-C, with
     ``interrupted()`` saying what was kept; 1 anything unexpected (one line;
-    ``GAZEAUG_DEBUG=1`` re-raises it for the traceback).
+    ``GAZEAUG_DEBUG=1`` re-raises it for the traceback). With ``GAZEAUG_DEBUG=1`` the
+    traceback of an exit-2 error (its causes included) is printed before its line too.
     """
     import os
+    import traceback
+
+    def _debug_traceback(exc: BaseException) -> None:
+        if os.environ.get("GAZEAUG_DEBUG"):
+            traceback.print_exception(exc, file=sys.stderr)
 
     def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
         print(f"{prog}: warning: {message}", file=sys.stderr)
@@ -261,9 +267,11 @@ def run_command(prog: str, command: Callable[[], int | None], interrupted: Calla
             warnings.showwarning = _show
             return command() or 0
     except (FaceMeshError, ImportError) as exc:
+        _debug_traceback(exc)
         print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file we could not read or write: the system's reason, one line
+        _debug_traceback(exc)
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from . import __version__
 from .background import interrupt_between_steps
-from .errors import GazeAugError
+from .errors import GazeAugError, TracebackText
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch, uses_face
 from .models.preprocess import (
@@ -835,6 +835,7 @@ def train(
             if not _out_of_memory(exc):
                 raise
             first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else exc.__class__.__name__
+            where = TracebackText(exc)  # the traceback as text: no frames held
         # raised here, outside the handler: the failed run's frames (model, held rows, graphs) are freed now
         ckpt = unfinished_checkpoint(out)
         kept = f"; the finished epochs are kept in {ckpt} (resumable with the same settings)" if ckpt else ""
@@ -842,7 +843,7 @@ def train(
             f"out of memory while training ({first}): a smaller batch size, the rows streamed rather than "
             f"held, or a smaller model needs less{kept}",
             remedy="memory",
-        )
+        ) from where
 
 
 #: Phrases of the out-of-memory errors PyTorch raises as plain RuntimeErrors (the host's allocator,

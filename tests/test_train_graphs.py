@@ -291,6 +291,36 @@ def test_out_of_memory_is_one_line_that_says_what_to_change(tmp_path, monkeypatc
     assert main([*argv, "--resume"]) == 0 and out.exists()
 
 
+def test_out_of_memory_keeps_where_it_was_raised(tmp_path, monkeypatch, capsys):
+    """The out of memory is raised after its handler (so the failed run's frames are freed), yet
+    its traceback is kept as text: the typed error's cause for API callers, and, with
+    GAZEAUG_DEBUG=1, printed by the command line before its one line (exit still 2)."""
+    from gazeaug.cli import main
+    from gazeaug.errors import GazeAugError, TracebackText
+
+    def allocate_a_lot(self, *args, **kwargs):  # a name to find in the kept traceback
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 3.00 GiB")
+
+    monkeypatch.setattr(torch.optim.AdamW, "step", allocate_a_lot)
+    h5 = synthetic_h5(tmp_path / "t.h5", n=64)
+    with pytest.raises(GazeAugError, match="out of memory while training") as caught:
+        train(h5, tmp_path / "m.pt", TrainSettings(epochs=1, batch_size=32), progress=False)
+    cause = caught.value.__cause__
+    assert isinstance(cause, TracebackText) and cause.__traceback__ is None  # text, no frames
+    assert "in allocate_a_lot" in cause.text
+    assert cause.text.endswith("OutOfMemoryError: CUDA out of memory. Tried to allocate 3.00 GiB")
+
+    argv = ["train", str(h5), "-o", str(tmp_path / "n.pt"), "--epochs", "1", "--device", "cpu", "--quiet"]
+    assert main(argv) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1  # without the switch: one line
+    monkeypatch.setenv("GAZEAUG_DEBUG", "1")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("gazeaug train: error: out of memory while training (CUDA out of memory.")
+    text = "\n".join(err[:-1])
+    assert "in allocate_a_lot" in text and "GazeAugError: out of memory while training" in text
+
+
 @pytest.mark.parametrize(
     "error",
     [
