@@ -255,8 +255,10 @@ def run_command(prog: str, command: Callable[[], int | None], interrupted: Calla
     import os
     import traceback
 
+    debug = os.environ.get("GAZEAUG_DEBUG", "").strip() not in ("", "0")
+
     def _debug_traceback(exc: BaseException) -> None:
-        if os.environ.get("GAZEAUG_DEBUG"):
+        if debug:
             traceback.print_exception(exc, file=sys.stderr)
 
     def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
@@ -279,7 +281,7 @@ def run_command(prog: str, command: Callable[[], int | None], interrupted: Calla
         print(f"{prog}: interrupted; {interrupted()}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
-        if os.environ.get("GAZEAUG_DEBUG"):
+        if debug:
             raise
         what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]
         print(f"{prog}: unexpected error: {what} (set GAZEAUG_DEBUG=1 to see the traceback)", file=sys.stderr)

@@ -21,11 +21,12 @@ class TracebackText(Exception):
     was raised (the pattern of ``concurrent.futures``' remote tracebacks).
     """
 
-    def __init__(self, exc: BaseException):
+    def __init__(self, exc: BaseException | str):
+        """Keep ``exc``'s traceback, its causes included, as text (a str is taken as that text)."""
         import traceback
 
-        self.text = "".join(traceback.format_exception(exc)).rstrip()
-        super().__init__(self.text)
+        self.text = exc if isinstance(exc, str) else "".join(traceback.format_exception(exc)).rstrip()
+        super().__init__(self.text)  # args (text,): pickled and copied from the text
 
     def __str__(self) -> str:
         return "\n\n" + self.text

@@ -20,10 +20,11 @@ gamma           ``255 (x / 255) ** g``, ``log g`` in                        0.25
 noise           Gaussian, standard deviation in ``[0, noise]`` grey        4
                 levels, one draw per pixel, the same on the three
                 channels (luminance noise: a third of the draws)
-head pose       Gaussian noise of standard deviation ``head_pose_deg``      0 (off)
-                degrees on each angle of the head-pose input (not on
-                the label): test-time head poses come from PnP, off by
-                a few degrees; drawn after the patches' augmentation
+head pose       per sample: Gaussian noise of standard deviation            0 (off)
+                ``head_pose_deg`` degrees on each angle of the head-pose
+                input (not on the label): test-time head poses come from
+                PnP, off by a few degrees; drawn after the patches'
+                augmentation
 mirror          with probability ``mirror`` per sample, both patches        0 (off)
                 mirrored left-right and swapped (the mirrored left eye
                 is a right eye), the yaw of the gaze and of the head

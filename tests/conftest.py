@@ -11,6 +11,13 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(autouse=True)
+def _no_debug_tracebacks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tests see the command lines as users do: a GAZEAUG_DEBUG set in the caller's shell (which adds
+    tracebacks to their one-line errors) is removed; a test that wants it sets it itself."""
+    monkeypatch.delenv("GAZEAUG_DEBUG", raising=False)
+
+
 def shared_data_dir() -> Path | None:
     """``$GAZEAUG_SHARED_DATA`` or ``../shared/data`` beside the repository, if it exists."""
     env = os.environ.get("GAZEAUG_SHARED_DATA")

@@ -5,6 +5,7 @@ The CUDA tests run where there is a GPU (CI has none: they are skipped there); t
 
 from __future__ import annotations
 
+import pickle
 import warnings
 
 import numpy as np
@@ -309,10 +310,15 @@ def test_out_of_memory_keeps_where_it_was_raised(tmp_path, monkeypatch, capsys):
     assert isinstance(cause, TracebackText) and cause.__traceback__ is None  # text, no frames
     assert "in allocate_a_lot" in cause.text
     assert cause.text.endswith("OutOfMemoryError: CUDA out of memory. Tried to allocate 3.00 GiB")
+    copied = pickle.loads(pickle.dumps(cause))  # a worker's error crosses processes by pickle
+    assert isinstance(copied, TracebackText) and copied.text == cause.text
 
     argv = ["train", str(h5), "-o", str(tmp_path / "n.pt"), "--epochs", "1", "--device", "cpu", "--quiet"]
     assert main(argv) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1  # without the switch: one line
+    monkeypatch.setenv("GAZEAUG_DEBUG", "0")
+    assert main(argv) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1  # "0" is off
     monkeypatch.setenv("GAZEAUG_DEBUG", "1")
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
