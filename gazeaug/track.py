@@ -932,26 +932,13 @@ def _count(counts: dict[str, int], row: dict[str, Any]) -> None:
         counts[key] += 1
 
 
-@contextlib.contextmanager
-def _one_torch_thread(estimator: Any) -> Iterator[None]:
-    """PyTorch on one thread while the block runs (a PyTorch estimator only), then as it was.
-
-    A PyTorch model on one sample per frame runs fastest on one thread: 1.1 ms against 3.2 ms with
-    two threads competing with MediaPipe's (the plain network; mirror averaging's batch of two about
-    0.35 ms more).
-    """
+def _one_torch_thread(estimator: Any) -> contextlib.AbstractContextManager[None]:
+    """PyTorch on one thread while the block runs (a PyTorch estimator only), then as it was."""
     if getattr(estimator, "kind", None) != "pytorch":
-        yield
-        return
-    from .models import import_torch
+        return contextlib.nullcontext()
+    from .models import one_torch_thread
 
-    torch = import_torch()
-    before = int(torch.get_num_threads())
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+    return one_torch_thread()
 
 
 _WINDOW = "gazeaug track"

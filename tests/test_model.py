@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 from dataclasses import replace
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -483,6 +484,33 @@ def test_evaluate_predict_cli(tmp_path, faces_dir, capsys):
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert len(out["gaze_vector_camera"]) == 3 and (tmp_path / "p.png").is_file()
     assert main(["predict", str(tmp_path / "nothing.pt"), str(root / file)]) == 2
+
+
+def test_evaluate_runs_the_model_on_one_thread_as_ray_actors_do(tmp_path, faces_dir):
+    """Local evaluation runs the network on one PyTorch thread, as each Ray actor does, so the two
+    engines give the same rows bit for bit (a CPU kernel may split its sums by thread count: 2 threads
+    against 1 moved errors by 2e-6 deg); the caller's thread count is restored after."""
+    from gazeaug.datasets import open_dataset
+    from gazeaug.evaluate import evaluate_dataset
+    from gazeaug.train import load_model
+
+    root = tmp_path / "ds"
+    root.mkdir()
+    file, (w, h) = _copy_photo(faces_dir, "astronaut.png", root)
+    (root / "labels.csv").write_text(
+        f"image,subject,fx,fy,cx,cy,target_x,target_y,target_z\n{file},s0,600,600,{w / 2},{h / 2},0,150,0\n"
+    )
+    model, meta = load_model(Path(__file__).parents[1] / "gazeaug" / "models" / "demo_wheelchair.pt")
+    seen = []
+    model.register_forward_pre_hook(lambda module, inputs: seen.append(torch.get_num_threads()))
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        res = evaluate_dataset(model, meta, open_dataset(root), progress=False)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    assert res["count"] == 1 and seen and set(seen) == {1}
 
 
 def test_experiment_runs_end_to_end(tmp_path, faces_dir, capsys):
