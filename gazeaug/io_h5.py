@@ -204,6 +204,24 @@ def _import_h5py() -> Any:
     return h5py
 
 
+def open_h5_for_reading(path: str | Path, error: type[FaceMeshError] = GazeAugError) -> Any:
+    """``h5py.File(path, "r")``, or ``error`` with one line saying why not.
+
+    A missing path and a folder are named as such; any other file h5py cannot open is "not a
+    readable HDF5 file" with h5py's reason (a file of another format: "file signature not found").
+    """
+    h5py = _import_h5py()
+    p = Path(path)
+    if not p.exists():
+        raise error(f"{p}: no such file")
+    if p.is_dir():
+        raise error(f"{p}: a folder, not an HDF5 file")
+    try:
+        return h5py.File(p, "r")
+    except OSError as exc:
+        raise error(f"{p}: not a readable HDF5 file ({exc})") from exc
+
+
 def check_output_state(path: Path, *, resume: bool, overwrite: bool) -> None:
     """What :class:`H5Writer` refuses before writing, checked alone (before starting a cluster, say).
 
@@ -671,14 +689,10 @@ class H5TrainingSet:
         *,
         allow_empty: bool = False,
     ):
-        h5py = _import_h5py()
         self.path = Path(path)
         self._fingerprint: str | None = None
         self._patch_fingerprint: str | None = None
-        try:
-            f = h5py.File(self.path, "r")
-        except OSError as exc:
-            raise GazeAugError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
+        f = open_h5_for_reading(self.path)
         with f, _reading(self.path):
             n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]

@@ -116,6 +116,10 @@ def test_bad_training_inputs(tmp_path):
     (tmp_path / "junk.h5").write_bytes(b"junk")
     with pytest.raises(GazeAugError, match="not a readable HDF5"):
         H5TrainingSet(tmp_path / "junk.h5")
+    with pytest.raises(GazeAugError, match=r"nothing\.h5: no such file$"):  # not h5py's errno paragraph
+        H5TrainingSet(tmp_path / "nothing.h5")
+    with pytest.raises(GazeAugError, match="a folder, not an HDF5 file$"):
+        H5TrainingSet(tmp_path)
     with pytest.raises(GazeAugError, match="epochs"):
         TrainSettings(epochs=0)
 

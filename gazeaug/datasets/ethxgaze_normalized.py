@@ -96,7 +96,7 @@ class ETHXGazeNormalized:
     name = "ethxgaze_normalized"
 
     def __init__(self, root: str | Path, resized_from_448: bool = True):
-        import h5py
+        from ..io_h5 import open_h5_for_reading
 
         self.root = Path(root)
         self.resized_from_448 = bool(resized_from_448)
@@ -105,11 +105,7 @@ class ETHXGazeNormalized:
             raise DatasetError(f"{self.root}: no subject*.h5 files (not ETH-XGaze's normalized release)")
         self._files: list[tuple[Path, int, int]] = []
         for p in files:
-            try:
-                f = h5py.File(p, "r")
-            except OSError as exc:
-                raise DatasetError(f"{p}: not a readable HDF5 file ({exc})") from exc
-            with f:
+            with open_h5_for_reading(p, DatasetError) as f:
                 if "left_eye_patch" in f or "right_eye_patch" in f:
                     raise DatasetError(
                         f"{p}: has left_eye_patch / right_eye_patch, so it was made by "

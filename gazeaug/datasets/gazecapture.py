@@ -69,18 +69,14 @@ class GazeCapture:
     name = "gazecapture"
 
     def __init__(self, root: str | Path, supplementary: str | Path | None = None):
-        import h5py
+        from ..io_h5 import open_h5_for_reading
 
         self.root = Path(root)
         self.supplementary = Path(supplementary) if supplementary else self.root / SUPPLEMENTARY_NAME
         if not self.supplementary.is_file():
             raise DatasetError(f"{self.supplementary}: GazeCapture's supplementary HDF5 not found")
-        try:
-            f = h5py.File(self.supplementary, "r")
-        except OSError as exc:
-            raise DatasetError(f"{self.supplementary}: not a readable HDF5 file ({exc})") from exc
         self._data: list[tuple[str, dict[str, Any]]] = []
-        with f:
+        with open_h5_for_reading(self.supplementary, DatasetError) as f:
             for subject in sorted(f.keys()):
                 g = f[subject]
                 where = f"{self.supplementary}, group {subject!r}"
