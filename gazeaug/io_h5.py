@@ -207,15 +207,18 @@ def _import_h5py() -> Any:
 def open_h5_for_reading(path: str | Path, error: type[FaceMeshError] = GazeAugError) -> Any:
     """``h5py.File(path, "r")``, or ``error`` with one line saying why not.
 
-    A missing path and a folder are named as such; any other file h5py cannot open is "not a
+    A missing path and one that is not a file (a folder) are said as
+    :func:`facemesh.io.check_input_file` says them; any other file h5py cannot open is "not a
     readable HDF5 file" with h5py's reason (a file of another format: "file signature not found").
     """
+    from facemesh.io import check_input_file
+    from facemesh.types import InputError
+
     h5py = _import_h5py()
-    p = Path(path)
-    if not p.exists():
-        raise error(f"{p}: no such file")
-    if p.is_dir():
-        raise error(f"{p}: a folder, not an HDF5 file")
+    try:
+        p = check_input_file(path)
+    except InputError as exc:  # the one check of an input path, said as this reader's error
+        raise error(str(exc)) from None
     try:
         return h5py.File(p, "r")
     except OSError as exc:
