@@ -90,6 +90,7 @@ __all__ = [
     "MIRROR_PITCHYAW",
     "mirror_pitchyaw",
     "mirrored_columns",
+    "principal_point_grid_coordinates",
     "rotation_to_head_pitchyaw",
     "face_forward",
     "frontal_coordinates",
@@ -299,6 +300,30 @@ def mirrored_columns(width: int) -> NDArray[np.int64]:
     cols = int(width) - np.arange(int(width), dtype=np.int64)
     cols[0] = int(width) - 1
     return cols
+
+
+def principal_point_grid_coordinates(width: int, height: int) -> tuple[float, float]:
+    """The normalized camera's principal point in PyTorch's ``grid_sample`` coordinates.
+
+    Convention: the principal point is ``(w / 2, h / 2)`` with pixel centres at whole
+    numbers (:func:`mirrored_columns`); ``grid_sample`` with ``align_corners=False`` puts
+    the patch's left edge at -1 and its right edge at +1, so pixel centre ``x`` lies at
+    ``(2 x + 1) / w - 1`` and the principal point at ``(1 / w, 1 / h)``, half a pixel
+    right of and below the patch's geometric centre. Zooming a patch by ``f`` about this
+    point (output position ``q`` reads input ``c + (q - c) / f``) is the same normalized
+    camera with focal length ``f f_n``: the gaze and head-pose labels stay as they are.
+
+    Args:
+        width: w, the patch's width in pixels (>= 1).
+        height: h, the patch's height in pixels (>= 1).
+
+    Returns:
+        (x, y), floats in grid_sample's normalized units (x right, y down).
+    """
+    for name, v in (("width", width), ("height", height)):
+        if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
+            raise ValueError(f"{name}: expected an integer >= 1, got {v!r}")
+    return 1.0 / int(width), 1.0 / int(height)
 
 
 def rotation_to_head_pitchyaw(rotation_head_to_camera: ArrayLike) -> NDArray[np.float64]:

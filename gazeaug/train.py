@@ -79,7 +79,7 @@ _LEGACY_SETTINGS: dict[str, Any] = {
     "balance_axes": False,
 }
 #: The augmentation fields an older gazeaug's checkpoint did not record, as that gazeaug augmented.
-_LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0, "head_pose_deg": 0.0}
+_LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0, "head_pose_deg": 0.0, "scale": 0.0}
 #: Augmentation defaults that changed, as (field, the default before): a checkpoint made under the
 #: older default resumes with it where the run being resumed leaves the field at today's default,
 #: so a run started before the change finishes as it began (``gazeaug train --resume`` has no

@@ -7,6 +7,10 @@ training patch, per sample and at random, in ways that keep the gaze label:
 ==============  =========================================================  ==============
 what            how (per patch, drawn uniformly unless said)               default
 ==============  =========================================================  ==============
+zoom            about the normalized camera's principal point, factor in    0 (off)
+                ``[1 - scale, 1 + scale]`` (the same camera with that
+                times the focal length: labels unchanged), bilinear,
+                borders reflected; first of the patches' operations
 translation     whole pixels in ``[-shift_px, shift_px]`` per axis,         10 px
                 borders reflected (as a pad-reflect and a random crop)
 blur            Gaussian, sigma in ``[0, blur_sigma]`` px; applied with     1.2 px
@@ -32,8 +36,8 @@ mirror          with probability ``mirror`` per sample, both patches        0 (o
                 drawn and applied first, by :func:`mirror_samples`
 ==============  =========================================================  ==============
 
-applied in this order (the mirror before the others), the values clipped to [0, 255] after the brightness and
-after the noise. The left and the right eye of a sample get **independent
+applied in this order (the mirror before the others, then the zoom), the values clipped
+to [0, 255] after the brightness and after the noise. The left and the right eye of a sample get **independent
 draws** (the model sees each eye through the shared backbone; a sample's eyes
 need not look alike). Nothing is drawn when :attr:`TrainAugment.enabled` is
 False: ``TrainAugment(enabled=False)`` (``gazeaug train --no-augment``) trains
@@ -67,7 +71,15 @@ from .errors import GazeAugError
 from .models import import_torch
 from .models.preprocess import eyes_to_float
 
-__all__ = ["TrainAugment", "augment_eyes", "augment_generator", "jitter_head_pose", "mirror_samples", "translate_blur"]
+__all__ = [
+    "TrainAugment",
+    "augment_eyes",
+    "augment_generator",
+    "jitter_head_pose",
+    "mirror_samples",
+    "translate_blur",
+    "zoom_patches",
+]
 
 
 def _number(v: Any) -> bool:
@@ -97,6 +109,11 @@ class TrainAugment:
         mirror: probability that a sample is mirrored left-right (eyes swapped, yaws negated), in
             [0, 1] (default 0: off; on 1800 simulated images 0.5 read new people at 8.43 deg against
             8.60 without, one seed: within noise; docs/model.md).
+        scale: largest relative zoom of a patch, in [0, 0.5]: factors drawn uniformly in
+            [1 - scale, 1 + scale] (default 0: off). A zoom about the principal point is the
+            normalized camera with another focal length, so the labels are kept; it varies the eye's
+            size in the patch, which the normalization leaves to each person's eyes and to how far
+            their face differs from the generic face the head pose is fitted to (docs/model.md).
         head_pose_deg: standard deviation of the Gaussian noise added to each angle (pitch, yaw) of
             the head-pose input, degrees, in [0, 20] (default 0: off). The gaze label is left as it
             is: the noise stands for the error of the head pose a test image gets from PnP against a
@@ -117,6 +134,7 @@ class TrainAugment:
     noise: float = 4.0
     mirror: float = 0.0
     head_pose_deg: float = 0.0
+    scale: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.enabled, (bool, np.bool_)):
@@ -134,6 +152,7 @@ class TrainAugment:
             "noise": (0.0, 64.0, True, " grey levels"),
             "mirror": (0.0, 1.0, True, ""),
             "head_pose_deg": (0.0, 20.0, True, " degrees"),
+            "scale": (0.0, 0.5, True, ""),
         }
         for name, (lo, hi, closed, unit) in bounds.items():
             v = getattr(self, name)
@@ -238,6 +257,39 @@ def translate_blur(
     return x.view(n, c, h, w).contiguous(memory_format=torch.channels_last)
 
 
+def zoom_patches(eyes: Any, factors: Any) -> Any:
+    """Zoom every patch about the normalized camera's principal point by its own factor.
+
+    ``out(q) = eyes(c + (q - c) / f)``, ``c`` the principal point ``(w / 2, h / 2)`` (pixel centres
+    at whole numbers; :func:`facemesh.conventions.principal_point_grid_coordinates`), sampled
+    bilinearly, positions beyond the border reflected about the patch's edges (``grid_sample``'s
+    ``reflection``). A factor above 1 enlarges the content: the same normalized camera with ``f``
+    times its focal length, so the gaze and head-pose labels hold as they are.
+
+    Args:
+        eyes: float32 torch tensor (N, C, H, W), any device.
+        factors: float32 (N,), the same device: the zoom factors (> 0).
+
+    Returns:
+        float32 (N, C, H, W) in channels-last memory order, the same device.
+    """
+    torch = import_torch()
+    from facemesh.conventions import principal_point_grid_coordinates
+
+    n, c, h, w = eyes.shape
+    if n == 0:
+        return eyes
+    cx, cy = principal_point_grid_coordinates(w, h)
+    inv = factors.float().reciprocal()
+    theta = torch.zeros((n, 2, 3), dtype=torch.float32, device=eyes.device)
+    theta[:, 0, 0], theta[:, 1, 1] = inv, inv
+    theta[:, 0, 2], theta[:, 1, 2] = (1 - inv) * cx, (1 - inv) * cy
+    fn = torch.nn.functional
+    grid = fn.affine_grid(theta, [n, c, h, w], align_corners=False)
+    out = fn.grid_sample(eyes.contiguous(), grid, mode="bilinear", padding_mode="reflection", align_corners=False)
+    return out.contiguous(memory_format=torch.channels_last)
+
+
 def jitter_head_pose(head: Any, augment: TrainAugment, generator: Any) -> Any:
     """The head-pose input with Gaussian noise of ``augment.head_pose_deg`` degrees on each angle.
 
@@ -250,8 +302,8 @@ def jitter_head_pose(head: Any, augment: TrainAugment, generator: Any) -> Any:
     Returns:
         A new float32 (N, 2) tensor, radians; ``head`` itself when the augmentation is off or the
         strength is 0: then nothing is drawn, so runs that do not ask for it draw every other
-        augmentation exactly as before the option existed (the one exception to "a strength set
-        to 0 changes no other draw").
+        augmentation exactly as before the option existed (one of the two exceptions, with the
+        zoom, to "a strength set to 0 changes no other draw").
     """
     torch = import_torch()
     if not augment.enabled or augment.head_pose_deg == 0 or head.shape[0] == 0:
@@ -329,7 +381,8 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     def uniform(lo: float, hi: float, *shape: int) -> Any:
         return torch.rand((n, *shape), generator=g, device=dev).mul_(hi - lo).add_(lo)
 
-    # every draw always made, in a fixed order: a strength set to 0 changes no other draw
+    # every draw always made, in a fixed order: a strength set to 0 changes no other draw (the zoom
+    # excepted, below)
     shift = torch.randint(-augment.shift_px, augment.shift_px + 1, (n, 2), generator=g, device=dev)
     sigma = uniform(0.0, augment.blur_sigma)
     gain = uniform(1 - augment.colour, 1 + augment.colour, 3)
@@ -338,7 +391,11 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     log_gamma = math.log1p(augment.gamma)
     gamma = uniform(-log_gamma, log_gamma).exp_()
     noise_std = uniform(0.0, augment.noise)
+    # drawn only when asked for, after the others: a run without it draws them as before it existed
+    zoom = uniform(1 - augment.scale, 1 + augment.scale) if augment.scale > 0 else None
     x = eyes_to_float(eyes)
+    if zoom is not None:
+        x = zoom_patches(x, zoom)
     if augment.shift_px or augment.blur_sigma > 0:
         x = translate_blur(x, shift, sigma, math.ceil(3 * augment.blur_sigma), max_shift=augment.shift_px)
     x = x * gain.view(n, 3, 1, 1)

@@ -51,6 +51,16 @@ def test_mirrored_columns_reflect_about_the_principal_point():
         cv.mirrored_columns(1)
 
 
+def test_principal_point_in_grid_sample_coordinates():
+    # w = 60: pixel centre 30 (the principal point) lies at (2 * 30 + 1) / 60 - 1 = 1/60; h = 36: 37/36 - 1 = 1/36
+    assert cv.principal_point_grid_coordinates(60, 36) == pytest.approx((1 / 60, 1 / 36), abs=1e-15)
+    # w = 4: the left edge is -1, pixel centres at -0.75, -0.25, 0.25, 0.75; the principal point 2.0 at 0.25
+    assert cv.principal_point_grid_coordinates(4, 1) == pytest.approx((0.25, 1.0), abs=1e-15)
+    for bad in ((0, 36), (60, 2.5), (True, 3)):
+        with pytest.raises(ValueError, match="expected an integer >= 1"):
+            cv.principal_point_grid_coordinates(*bad)
+
+
 def test_pitchyaw_round_trip_batched():
     rng = np.random.default_rng(0)
     a = rng.uniform(-1.2, 1.2, size=(50, 2))

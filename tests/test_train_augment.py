@@ -36,6 +36,7 @@ from gazeaug.train_augment import (  # noqa: E402
     jitter_head_pose,
     mirror_samples,
     translate_blur,
+    zoom_patches,
 )
 
 
@@ -97,6 +98,60 @@ def test_both_methods_agree():
     a = translate_blur(x, shift, sigma, 6, method="matmul")
     b = translate_blur(x, shift, sigma, 6, method="conv")
     np.testing.assert_allclose(a.numpy(), b.numpy(), atol=1e-3)
+
+
+def _ramps(n=1, h=36, w=60):
+    """(n, 2, h, w) float32: channel 0 holds each pixel's column, channel 1 its row (pixel centres at whole numbers)."""
+    cols = torch.arange(w, dtype=torch.float32).view(1, w).expand(h, w)
+    rows = torch.arange(h, dtype=torch.float32).view(h, 1).expand(h, w)
+    return torch.stack([cols, rows]).unsqueeze(0).repeat(n, 1, 1, 1)
+
+
+def test_zoom_reads_each_pixel_from_the_principal_point_outward():
+    # out(q) = in(c + (q - c) / f), c = (w / 2, h / 2) = (30, 18): on ramps the value read is that position
+    x = _ramps(3)
+    out = zoom_patches(x, torch.tensor([2.0, 1.0, 0.5]))
+    assert out.shape == (3, 2, 36, 60) and out.is_contiguous(memory_format=torch.channels_last)
+    q_col = torch.arange(60, dtype=torch.float32).view(1, 60)
+    q_row = torch.arange(36, dtype=torch.float32).view(36, 1)
+    # f = 2: every position read lies inside the patch (columns 15..44.5, rows 9..26.5)
+    torch.testing.assert_close(out[0, 0], (30 + (q_col - 30) / 2).expand(36, 60), atol=1e-4, rtol=0)
+    torch.testing.assert_close(out[0, 1], (18 + (q_row - 18) / 2).expand(36, 60), atol=1e-4, rtol=0)
+    torch.testing.assert_close(out[1], x[1], atol=1e-4, rtol=0)  # f = 1: the patch itself
+    # f = 0.5: columns 15..44 read 0..58, inside; the rest reaches past the border (reflected there)
+    torch.testing.assert_close(out[2, 0, :, 15:45], (30 + (q_col[:, 15:45] - 30) * 2).expand(36, 30), atol=1e-3, rtol=0)
+    assert float(out[2, 0].min()) >= 0.0 and float(out[2, 0].max()) <= 59.0  # reflected, not zero-padded
+    # the principal point itself stays put whatever the factor
+    assert torch.allclose(out[:, :, 18, 30], torch.tensor([30.0, 18.0]).expand(3, 2), atol=1e-4)
+
+
+def test_zoom_is_drawn_only_when_asked_and_within_its_bounds():
+    eyes = torch.zeros((200, 36, 60, 3), dtype=torch.uint8)
+    eyes[..., 0] = torch.arange(60, dtype=torch.uint8).view(1, 1, 60)  # a column ramp in the red channel
+    zoom_only = TrainAugment(shift_px=0, blur_sigma=0, colour=0, contrast=0, brightness=0, gamma=0, noise=0, scale=0.2)
+    g = augment_generator(2, 0)
+    out = augment_eyes(eyes, zoom_only, g)
+    # the ramp's slope at the centre is 1 / f: f uniform in [0.8, 1.2]
+    slope = (out[:, 0, 18, 35] - out[:, 0, 18, 25]) / 10
+    f = 1 / slope
+    assert float(f.min()) >= 0.8 - 1e-4 and float(f.max()) <= 1.2 + 1e-4
+    assert float(f.min()) < 0.85 and float(f.max()) > 1.15  # spans the range
+    assert abs(float(f.mean()) - 1.0) < 0.02  # uniform about 1: sd 0.4 / sqrt(12) / sqrt(200) = 0.008
+    # scale 0: nothing drawn, so the generator ends where the draws made before the option left it
+    # (the module's table: the shifts, six uniform draws, the pixel noise), and runs are as before
+    n = eyes.shape[0]
+    g0, g1 = augment_generator(2, 0), augment_generator(2, 0)
+    augment_eyes(eyes, TrainAugment(), g0)
+    torch.randint(-10, 11, (n, 2), generator=g1)
+    for shape in ((n,), (n, 3), (n,), (n,), (n,), (n,)):
+        torch.rand(shape, generator=g1)
+    torch.randn((n, 1, 36, 60), generator=g1)
+    assert torch.equal(g0.get_state(), g1.get_state())
+    g2 = augment_generator(2, 0)
+    augment_eyes(eyes, TrainAugment(scale=0.1), g2)
+    assert not torch.equal(g0.get_state(), g2.get_state())  # asked for, the zoom draws
+    with pytest.raises(GazeAugError, match=r"scale: expected a number in \[0, 0.5\], got 0.6"):
+        TrainAugment(scale=0.6)
 
 
 # --- the augmentation as a whole ---------------------------------------------------------------------------
@@ -327,7 +382,9 @@ def test_training_is_reproducible_and_old_checkpoints_say_what_to_do(tmp_path):
     # no auto_samples; resumed with the sizes left to None, it keeps its own (epochs 1, batch 16)
     train(h5, tmp_path / "p.pt", s, progress=False)
     ck = torch.load(tmp_path / "p.ckpt.pt", weights_only=True)
-    del ck["settings"]["augment"]["mirror"], ck["settings"]["augment"]["head_pose_deg"], ck["settings"]["auto_samples"]
+    for k in ("mirror", "head_pose_deg", "scale"):
+        del ck["settings"]["augment"][k]
+    del ck["settings"]["auto_samples"]
     torch.save(ck, tmp_path / "p.ckpt.pt")
     assert len(train(h5, tmp_path / "p.pt", TrainSettings(seed=3), resume=True, progress=False)) == 1
     # numpy numbers become plain ones (the model file's safe loader refuses numpy scalars)
