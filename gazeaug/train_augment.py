@@ -391,7 +391,8 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     log_gamma = math.log1p(augment.gamma)
     gamma = uniform(-log_gamma, log_gamma).exp_()
     noise_std = uniform(0.0, augment.noise)
-    # drawn only when asked for, after the others: a run without it draws them as before it existed
+    # drawn only when asked for (after every draw but the pixel noise's, which it then moves): a run
+    # without it draws as before it existed
     zoom = uniform(1 - augment.scale, 1 + augment.scale) if augment.scale > 0 else None
     x = eyes_to_float(eyes)
     if zoom is not None:

@@ -141,12 +141,21 @@ def test_zoom_is_drawn_only_when_asked_and_within_its_bounds():
     # (the module's table: the shifts, six uniform draws, the pixel noise), and runs are as before
     n = eyes.shape[0]
     g0, g1 = augment_generator(2, 0), augment_generator(2, 0)
-    augment_eyes(eyes, TrainAugment(), g0)
+    a0 = augment_eyes(eyes, TrainAugment(), g0)
     torch.randint(-10, 11, (n, 2), generator=g1)
     for shape in ((n,), (n, 3), (n,), (n,), (n,), (n,)):
         torch.rand(shape, generator=g1)
     torch.randn((n, 1, 36, 60), generator=g1)
     assert torch.equal(g0.get_state(), g1.get_state())
+    # and no zoom applied (a zoom by 1 is not exact: it would move the pixels by rounding)
+    import gazeaug.train_augment as ta
+
+    def refuse(*args):
+        raise AssertionError("zoom_patches called at scale 0")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ta, "zoom_patches", refuse)
+        assert torch.equal(augment_eyes(eyes, TrainAugment(), augment_generator(2, 0)), a0)
     g2 = augment_generator(2, 0)
     augment_eyes(eyes, TrainAugment(scale=0.1), g2)
     assert not torch.equal(g0.get_state(), g2.get_state())  # asked for, the zoom draws
@@ -378,7 +387,8 @@ def test_training_is_reproducible_and_old_checkpoints_say_what_to_do(tmp_path):
     with pytest.raises(GazeAugError, match="older gazeaug, without training-time augmentation.*--no-augment"):
         train(h5, tmp_path / "o.pt", s, resume=True, progress=False)
     assert len(train(h5, tmp_path / "o.pt", off, resume=True, progress=False)) == 1  # as it was trained: accepted
-    # a checkpoint of the gazeaug before the mirror and the fitted sizes: augment recorded without "mirror",
+    # a checkpoint of the gazeaug before the mirror, the head-pose jitter, the zoom and the fitted sizes:
+    # augment recorded without "mirror", "head_pose_deg" and "scale",
     # no auto_samples; resumed with the sizes left to None, it keeps its own (epochs 1, batch 16)
     train(h5, tmp_path / "p.pt", s, progress=False)
     ck = torch.load(tmp_path / "p.ckpt.pt", weights_only=True)
