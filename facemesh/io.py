@@ -8,6 +8,7 @@ in the same folder, which is renamed over the target only once complete.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import os
 import tempfile
@@ -246,6 +247,27 @@ def _looks_complete(data: NDArray[np.uint8]) -> bool:
     return True
 
 
+#: How many files :func:`atomic_write` has finished in this process, and the last of them
+#: (:func:`files_written_since`: what a command wrote before a Ctrl-C).
+_written_count = 0
+_WRITTEN_LAST: collections.deque[Path] = collections.deque(maxlen=16)
+
+
+def files_written_count() -> int:
+    """How many files :func:`atomic_write` has finished in this process (a mark for :func:`files_written_since`)."""
+    return _written_count
+
+
+def files_written_since(mark: int) -> tuple[list[Path], int]:
+    """The files :func:`atomic_write` finished since ``mark`` (:func:`files_written_count`), in order.
+
+    Returns:
+        The last of them (at most 16) and how many there were in all.
+    """
+    n = _written_count - mark
+    return (list(_WRITTEN_LAST)[-n:] if n > 0 else []), max(n, 0)
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[bytes]]:
     """Open a temporary file beside ``path``; rename it onto ``path`` only if the block succeeds.
@@ -268,6 +290,9 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    global _written_count
+    _written_count += 1
+    _WRITTEN_LAST.append(target)
 
 
 def save_image_rgb(path: str | os.PathLike[str], image: NDArray[np.uint8]) -> None:

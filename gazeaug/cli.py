@@ -1551,7 +1551,9 @@ def _interrupted(args: argparse.Namespace) -> str:
         return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"
-    return "nothing was written (outputs are written whole or not at all)"
+    from facemesh.cli import NOTHING_WRITTEN
+
+    return NOTHING_WRITTEN
 
 
 def main(argv: Sequence[str] | None = None) -> int:

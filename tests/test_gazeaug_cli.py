@@ -79,6 +79,22 @@ def test_preview_writes_the_sheet_and_the_plot(glb, tmp_path):
     assert out.is_file() and (tmp_path / "sheet_distribution.png").is_file()
 
 
+def test_ctrl_c_after_the_sheet_names_it_and_not_the_plot(glb, tmp_path, monkeypatch, capsys):
+    """A Ctrl-C between preview's two outputs: the sheet is whole, the plot absent, and the line says so."""
+    import gazeaug.viz
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(gazeaug.viz, "plot_distributions", interrupt)
+    out = tmp_path / "sheet.png"
+    assert main(["preview", str(glb), "-n", "2", "-o", str(out)]) == 130
+    err = capsys.readouterr().err.strip()
+    assert err == f"gazeaug preview: interrupted; wrote {out} whole before it; nothing else was written"
+    assert out.is_file() and not (tmp_path / "sheet_distribution.png").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["sheet.png"]  # no temporary file left
+
+
 def test_bench_prints_one_json_line(capsys):
     assert main(["bench", "render", "--n", "4", "--per-face", "2"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]

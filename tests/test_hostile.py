@@ -544,6 +544,26 @@ def test_outputs_follow_the_umask(tmp_path, capsys, mask):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o666 & ~mask, name
 
 
+def test_files_written_since_names_what_atomic_write_finished(tmp_path):
+    from facemesh.io import atomic_write, files_written_count, files_written_since
+
+    mark = files_written_count()
+    assert files_written_since(mark) == ([], 0)
+    with atomic_write(tmp_path / "a.bin") as fh:
+        fh.write(b"a")
+    with pytest.raises(KeyboardInterrupt), atomic_write(tmp_path / "b.bin") as fh:
+        fh.write(b"b")
+        raise KeyboardInterrupt  # not finished: not counted, and nothing left
+    for i in range(20):
+        with atomic_write(tmp_path / f"c{i}.bin") as fh:
+            fh.write(b"c")
+    done, count = files_written_since(mark)
+    assert count == 21  # a.bin and the 20 c files
+    assert done == [tmp_path / f"c{i}.bin" for i in range(4, 20)]  # the last 16 named
+    assert not (tmp_path / "b.bin").exists()
+    assert files_written_since(files_written_count()) == ([], 0)
+
+
 # --------------------------------------------------------------------------------------------
 # 12. Non-finite numbers
 # --------------------------------------------------------------------------------------------
