@@ -274,8 +274,10 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
 
     On any exception the temporary file is removed and ``path`` is untouched.
     The parent folder is created if missing. The file gets the permissions the
-    umask gives (``0666 & ~umask``), as a plain ``open`` would.
+    umask gives (``0666 & ~umask``), as a plain ``open`` would. Each file finished is
+    counted (:func:`files_written_since`).
     """
+    global _written_count
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=str(target.parent))
@@ -290,7 +292,6 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
-    global _written_count
     _written_count += 1
     _WRITTEN_LAST.append(target)
 

@@ -23,6 +23,7 @@ from facemesh.cli import (
     FACE_INDEX_HELP,
     FACE_MODEL_HELP,
     KEYPOINTS_HELP,
+    NOTHING_WRITTEN,
     OneLineParser,
     finite_float,
 )
@@ -1551,8 +1552,6 @@ def _interrupted(args: argparse.Namespace) -> str:
         return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"
-    from facemesh.cli import NOTHING_WRITTEN
-
     return NOTHING_WRITTEN
 
 
