@@ -261,11 +261,19 @@ def files_written_count() -> int:
 def files_written_since(mark: int) -> tuple[list[Path], int]:
     """The files :func:`atomic_write` finished since ``mark`` (:func:`files_written_count`), in order.
 
+    A file removed since (one a command wrote into a scratch folder of its own and removed with
+    it, as ``gazeaug calibrate`` tracks in a temporary folder) is left out of both the names and
+    the count; beyond the last 16 a removal cannot be seen, and those files are counted.
+
     Returns:
-        The last of them (at most 16) and how many there were in all.
+        The last of them still there (at most 16) and how many there were in all.
     """
     n = _written_count - mark
-    return (list(_WRITTEN_LAST)[-n:] if n > 0 else []), max(n, 0)
+    if n <= 0:
+        return [], 0
+    last = list(_WRITTEN_LAST)[-n:]
+    kept = [p for p in last if p.exists()]
+    return kept, n - (len(last) - len(kept))
 
 
 @contextlib.contextmanager

@@ -562,6 +562,12 @@ def test_files_written_since_names_what_atomic_write_finished(tmp_path):
     assert done == [tmp_path / f"c{i}.bin" for i in range(4, 20)]  # the last 16 named
     assert not (tmp_path / "b.bin").exists()
     assert files_written_since(files_written_count()) == ([], 0)
+    # a file removed since (a scratch folder's) is neither named nor counted: 21 - 2 = 19, the 16 last left
+    (tmp_path / "c19.bin").unlink()
+    (tmp_path / "c10.bin").unlink()
+    done, count = files_written_since(mark)
+    assert count == 19
+    assert done == [tmp_path / f"c{i}.bin" for i in range(4, 19) if i != 10]
 
 
 # --------------------------------------------------------------------------------------------
