@@ -242,18 +242,21 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 _COMMANDS: dict[str, Any] = {}
 
-#: What a Ctrl-C keeps when a command has no partial output of its own to name (its outputs are
-#: written whole or not at all); :func:`run_command` names the files it did finish instead.
+#: What a Ctrl-C kept when a command has no partial output of its own to name and finished no
+#: file (its outputs are written whole or not at all).
 NOTHING_WRITTEN = "nothing was written (outputs are written whole or not at all)"
 
 
-def run_command(prog: str, command: Callable[[], int | None], interrupted: Callable[[], str]) -> int:
+def run_command(
+    prog: str, command: Callable[[], int | None], interrupted: Callable[[], str | None] = lambda: None
+) -> int:
     """Run one command the way both command lines do: outputs' warnings and errors as one line each.
 
     Exit codes: 0 done; 2 bad input (the library's typed errors, phrased with
     :func:`error_line`; a file the system would not read or write); 130 Ctrl-C, with
-    ``interrupted()`` saying what was kept (when it says :data:`NOTHING_WRITTEN` but the command
-    had finished files, those are named instead); 1 anything unexpected (one line;
+    ``interrupted()`` saying what was kept (one line), or returning ``None`` when the command
+    keeps no partial output of its own: then the files it finished are named, or
+    :data:`NOTHING_WRITTEN` said; 1 anything unexpected (one line;
     ``GAZEAUG_DEBUG=1`` re-raises it for the traceback). With ``GAZEAUG_DEBUG=1`` the
     traceback of an exit-2 error (its causes included) is printed before its line too.
     """
@@ -287,12 +290,14 @@ def run_command(prog: str, command: Callable[[], int | None], interrupted: Calla
         return 2
     except KeyboardInterrupt:
         kept = interrupted()
-        done, count = files_written_since(mark)
-        if kept == NOTHING_WRITTEN and count:
-            names = ", ".join(str(p) for p in done)
-            if count > len(done):
-                names += f" (the last {len(done)} of {count})"
-            kept = f"wrote {names} whole before it; nothing else was written"
+        if kept is None:
+            done, count = files_written_since(mark)
+            kept = NOTHING_WRITTEN
+            if count:
+                names = ", ".join(str(p) for p in done)
+                if count > len(done):
+                    names += f" (the last {len(done)} of {count})"
+                kept = f"wrote {names} whole before it; nothing else was written"
         print(f"{prog}: interrupted; {kept}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
@@ -332,7 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _check_outputs(args)
         _COMMANDS[args.command](args)
 
-    return run_command("facemesh", command, lambda: NOTHING_WRITTEN)
+    return run_command("facemesh", command)
 
 
 def _cmd_build(args: argparse.Namespace) -> None:

@@ -23,7 +23,6 @@ from facemesh.cli import (
     FACE_INDEX_HELP,
     FACE_MODEL_HELP,
     KEYPOINTS_HELP,
-    NOTHING_WRITTEN,
     OneLineParser,
     finite_float,
 )
@@ -1530,8 +1529,12 @@ def _refuse_output_over_input(args: argparse.Namespace) -> None:
                 raise GazeAugError(f"{o}: the output would replace the input {p}; choose another -o")
 
 
-def _interrupted(args: argparse.Namespace) -> str:
-    """What an interrupted command kept, and how to go on (one line)."""
+def _interrupted(args: argparse.Namespace) -> str | None:
+    """What an interrupted command kept, and how to go on (one line); ``None``: no partial output.
+
+    ``None`` leaves the line to :func:`facemesh.cli.run_command`: the files the command had
+    finished, or that nothing was written.
+    """
     out = getattr(args, "output", None)
     if args.command in ("augment", "normalize-dataset") and out is not None:
         from .io_h5 import part_path
@@ -1552,7 +1555,7 @@ def _interrupted(args: argparse.Namespace) -> str:
         return f"the outputs in {out} are complete up to the last frame processed"
     if args.command == "experiment" and out is not None:
         return f"the steps that finished are in {out}; run the same command again to redo the rest"
-    return NOTHING_WRITTEN
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
