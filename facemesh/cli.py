@@ -247,13 +247,31 @@ _COMMANDS: dict[str, Any] = {}
 NOTHING_WRITTEN = "nothing was written (outputs are written whole or not at all)"
 
 
+def caused_by_ctrl_c(exc: BaseException) -> bool:
+    """Whether a ``KeyboardInterrupt`` is among ``exc``'s causes or contexts.
+
+    A Ctrl-C that arrives while a native module initializes (open3d's import, for one) comes
+    out as that module's own error, here ``ImportError("initialization failed")`` with the
+    ``KeyboardInterrupt`` as its cause; without this check it would read as a missing package.
+    """
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return True
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return False
+
+
 def run_command(
     prog: str, command: Callable[[], int | None], interrupted: Callable[[], str | None] = lambda: None
 ) -> int:
     """Run one command the way both command lines do: outputs' warnings and errors as one line each.
 
     Exit codes: 0 done; 2 bad input (the library's typed errors, phrased with
-    :func:`error_line`; a file the system would not read or write); 130 Ctrl-C, with
+    :func:`error_line`; a file the system would not read or write); 130 Ctrl-C (also one that a
+    native module turned into an error of its own, :func:`caused_by_ctrl_c`), with
     ``interrupted()`` saying what was kept (one line), or returning ``None`` when the command
     keeps no partial output of its own: then the files it finished are named, or
     :data:`NOTHING_WRITTEN` said; 1 anything unexpected (one line;
@@ -275,20 +293,7 @@ def run_command(
     def _show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
         print(f"{prog}: warning: {message}", file=sys.stderr)
 
-    try:
-        with warnings.catch_warnings():
-            warnings.showwarning = _show
-            return command() or 0
-    except (FaceMeshError, ImportError) as exc:
-        _debug_traceback(exc)
-        print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # a file we could not read or write: the system's reason, one line
-        _debug_traceback(exc)
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
+    def _interrupted() -> int:
         kept = interrupted()
         if kept is None:
             done, count = files_written_since(mark)
@@ -300,7 +305,25 @@ def run_command(
                 kept = f"wrote {names} whole before it; nothing else was written"
         print(f"{prog}: interrupted; {kept}", file=sys.stderr)
         return 130
+
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show
+            return command() or 0
+    except KeyboardInterrupt:
+        return _interrupted()
     except Exception as exc:  # noqa: BLE001 - no traceback reaches a user
+        if caused_by_ctrl_c(exc):  # a Ctrl-C that a native module turned into its own error
+            return _interrupted()
+        if isinstance(exc, (FaceMeshError, ImportError)):
+            _debug_traceback(exc)
+            print(f"{prog}: error: {error_line(exc)}", file=sys.stderr)
+            return 2
+        if isinstance(exc, OSError):  # a file we could not read or write: the system's reason, one line
+            _debug_traceback(exc)
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"{prog}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+            return 2
         if debug:
             raise
         what = f"{exc.__class__.__name__}: {exc}".splitlines()[0][:300]

@@ -524,6 +524,31 @@ def test_ctrl_c_in_facemesh_build_writes_nothing(tmp_path, capsys, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_ctrl_c_a_native_module_turned_into_an_import_error_is_130(capsys):
+    """A Ctrl-C during open3d's import came out as ImportError('initialization failed') caused
+    by the KeyboardInterrupt (measured: a SIGINT about 2.5 s into ``gazeaug simulate``) and was
+    phrased as a missing package, exit 2. It is an interruption: 130 and the interrupted line."""
+    from facemesh.cli import NOTHING_WRITTEN, caused_by_ctrl_c, run_command
+
+    def native_import() -> None:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as ki:
+            raise ImportError("initialization failed") from ki
+
+    code = run_command("gazeaug simulate", native_import)
+    assert code == 130
+    _one_line(capsys.readouterr().err, "interrupted", NOTHING_WRITTEN)
+    plain = ImportError("No module named 'open3d'")
+    assert not caused_by_ctrl_c(plain)
+    assert run_command("gazeaug simulate", lambda: (_ for _ in ()).throw(plain)) == 2  # a real missing package
+    _one_line(capsys.readouterr().err, "error", "open3d")
+    looped = RuntimeError("a")  # a cycle of contexts ends the walk
+    looped.__context__ = RuntimeError("b")
+    looped.__context__.__context__ = looped
+    assert not caused_by_ctrl_c(looped)
+
+
 # --------------------------------------------------------------------------------------------
 # 11. Outputs follow the umask
 # --------------------------------------------------------------------------------------------
