@@ -300,7 +300,9 @@ def run_command(
             kept = NOTHING_WRITTEN
             if count:
                 names = ", ".join(str(p) for p in done)
-                if count > len(done):
+                if not done:  # the last ones were removed since (a scratch folder): a count only
+                    names = f"{count} file{'s' if count > 1 else ''}"
+                elif count > len(done):
                     names += f" (the last {len(done)} of {count})"
                 kept = f"wrote {names} whole before it; nothing else was written"
         print(f"{prog}: interrupted; {kept}", file=sys.stderr)

@@ -251,6 +251,10 @@ def _looks_complete(data: NDArray[np.uint8]) -> bool:
 #: (:func:`files_written_since`: what a command wrote before a Ctrl-C).
 _written_count = 0
 _WRITTEN_LAST: collections.deque[Path] = collections.deque(maxlen=16)
+#: Runs of consecutive finished files in one folder, ``[index of the first, folder, how many]``,
+#: the last 1024 runs: beyond :data:`_WRITTEN_LAST`, a file whose folder was removed since (a
+#: command's scratch folder) is not counted by :func:`files_written_since`.
+_WRITTEN_RUNS: collections.deque[list[Any]] = collections.deque(maxlen=1024)
 
 
 def files_written_count() -> int:
@@ -262,18 +266,27 @@ def files_written_since(mark: int) -> tuple[list[Path], int]:
     """The files :func:`atomic_write` finished since ``mark`` (:func:`files_written_count`), in order.
 
     A file removed since (one a command wrote into a scratch folder of its own and removed with
-    it, as ``gazeaug calibrate`` tracks in a temporary folder) is left out of both the names and
-    the count; beyond the last 16 a removal cannot be seen, and those files are counted.
+    it, as ``gazeaug simulate`` and ``gazeaug calibrate`` do) is left out of both the names and
+    the count. The last 16 files are checked one by one; before them, files are counted by
+    folder: those in a folder removed since are left out, a single file removed from a folder
+    that is still there cannot be seen and is counted.
 
     Returns:
-        The last of them still there (at most 16) and how many there were in all.
+        The last of them still there (at most 16; none when all of the last 16 were removed)
+        and how many there are in all.
     """
     n = _written_count - mark
     if n <= 0:
         return [], 0
     last = list(_WRITTEN_LAST)[-n:]
     kept = [p for p in last if p.exists()]
-    return kept, n - (len(last) - len(kept))
+    older_end = _written_count - len(last)  # files [mark, older_end) are beyond the last 16
+    older = older_end - mark
+    for first, folder, count in _WRITTEN_RUNS:
+        overlap = min(first + count, older_end) - max(first, mark)
+        if overlap > 0 and not folder.is_dir():
+            older -= overlap
+    return kept, older + len(kept)
 
 
 @contextlib.contextmanager
@@ -300,6 +313,10 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    if _WRITTEN_RUNS and _WRITTEN_RUNS[-1][1] == target.parent:
+        _WRITTEN_RUNS[-1][2] += 1
+    else:
+        _WRITTEN_RUNS.append([_written_count, target.parent, 1])
     _written_count += 1
     _WRITTEN_LAST.append(target)
 

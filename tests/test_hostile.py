@@ -595,6 +595,62 @@ def test_files_written_since_names_what_atomic_write_finished(tmp_path):
     assert done == [tmp_path / f"c{i}.bin" for i in range(4, 19) if i != 10]
 
 
+def test_files_in_a_removed_scratch_folder_are_not_counted_beyond_the_last_16(tmp_path):
+    """``gazeaug simulate`` writes every image into ``OUT.part/`` and removes it on Ctrl-C. With
+    more than 16 images the older ones were still counted, and the line read ``wrote  (the last 0
+    of 30) whole before it``. Hand count: 1 kept file, then 30 in a scratch folder removed."""
+    import shutil
+
+    from facemesh.io import atomic_write, files_written_count, files_written_since
+
+    mark = files_written_count()
+    with atomic_write(tmp_path / "kept.bin") as fh:
+        fh.write(b"k")
+    for i in range(30):  # two subfolders, as a simulated dataset's subjects
+        with atomic_write(tmp_path / "scratch" / f"s{i // 15}" / f"{i:02d}.jpg") as fh:
+            fh.write(b"s")
+    done, count = files_written_since(mark)
+    assert count == 31
+    assert done == [tmp_path / "scratch" / f"s{i // 15}" / f"{i:02d}.jpg" for i in range(14, 30)]
+    shutil.rmtree(tmp_path / "scratch")
+    assert files_written_since(mark) == ([], 1)  # kept.bin, beyond the last 16: counted, not named
+    (tmp_path / "kept.bin").unlink()  # a single file beyond the last 16 removed: cannot be seen
+    assert files_written_since(mark) == ([], 1)
+    mark = files_written_count()
+    for i in range(20):
+        with atomic_write(tmp_path / "scratch2" / f"{i}.bin") as fh:
+            fh.write(b"t")
+    shutil.rmtree(tmp_path / "scratch2")
+    assert files_written_since(mark) == ([], 0)
+
+
+def test_an_interrupted_command_whose_scratch_folder_went_says_nothing_was_written(tmp_path, capsys):
+    """run_command's line after a Ctrl-C, for a command that wrote 30 files into a scratch folder
+    and removed it (``gazeaug simulate``'s ``OUT.part/``), and for one whose last files went but an
+    earlier one stayed."""
+    import shutil
+
+    from facemesh.cli import NOTHING_WRITTEN, run_command
+    from facemesh.io import atomic_write
+
+    def scratch_then_ctrl_c(keep_first: bool) -> None:
+        if keep_first:
+            with atomic_write(tmp_path / "first.bin") as fh:
+                fh.write(b"f")
+        for i in range(30):
+            with atomic_write(tmp_path / "OUT.part" / f"{i:02d}.jpg") as fh:
+                fh.write(b"s")
+        shutil.rmtree(tmp_path / "OUT.part")
+        raise KeyboardInterrupt
+
+    assert run_command("gazeaug simulate", lambda: scratch_then_ctrl_c(False)) == 130
+    _one_line(capsys.readouterr().err, "interrupted", NOTHING_WRITTEN)
+    assert run_command("gazeaug simulate", lambda: scratch_then_ctrl_c(True)) == 130
+    err = capsys.readouterr().err
+    _one_line(err, "interrupted", "wrote 1 file whole before it; nothing else was written")
+    assert "(the last" not in err
+
+
 # --------------------------------------------------------------------------------------------
 # 12. Non-finite numbers
 # --------------------------------------------------------------------------------------------
