@@ -424,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--format", choices=formats, help=format_help)
     ev.add_argument("--limit", type=_positive_int, default=None, help="only the first N samples of a dataset folder")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_mirror_option(ev)
     _add_engine_options(ev)
 
     pr = sub.add_parser("predict", help="gaze of the face in an image (camera frame) and a picture of it")
@@ -435,6 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"calibration file (default: {DEFAULT_CAMERA_HELP})",
     )
     pr.add_argument("-o", "--output", type=Path, default=None, help="picture with the gaze arrow (.png/.jpg)")
+    _add_mirror_option(pr)
 
     tk = sub.add_parser(
         "track",
@@ -1052,13 +1054,34 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_mirror_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--mirror-average",
+        choices=("on", "off"),
+        default=None,
+        help="average the network's answers on the eyes and on their mirror image, or read it plainly "
+        "(default: as the model file says; a .onnx export as it was exported)",
+    )
+
+
+def _mirror_choice(args: argparse.Namespace) -> bool | None:
+    return None if args.mirror_average is None else args.mirror_average == "on"
+
+
+def _mirror_applied(model: Any) -> bool:
+    """Whether a loaded estimator averages with the mirrored eyes (a .pt as loaded, a .onnx as exported)."""
+    if model.kind == "onnx":
+        return bool(model.meta.get("gazeaug.mirror_average", "false") == "true")
+    return bool(model.meta.get("mirror_average", False))
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
     from .estimator import load_estimator
     from .evaluate import evaluate_dataset, evaluate_h5, write_report
 
     engine = _engine(args, local_workers=False)
-    model = load_estimator(args.model)
+    model = load_estimator(args.model, mirror_average=_mirror_choice(args))
     if args.dataset.suffix in (".h5", ".hdf5"):
         if engine.kind != "local":
             raise GazeAugError("--engine ray: for raw datasets; a normalized .h5 is evaluated here")
@@ -1068,8 +1091,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
         reader = open_dataset(args.dataset, args.format)
         result = evaluate_dataset(model, model.meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
+    result["mirror_average"] = _mirror_applied(model)
     paths = write_report(result, args.output)
-    short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped")}
+    short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped", "mirror_average")}
     short["per_subject"] = {k: round(v["mean_deg"], 3) for k, v in result["per_subject"].items()}
     short["report"] = str(paths["json"])
     print(json.dumps(short))
@@ -1085,7 +1109,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from .evaluate import predict_image
     from .pipeline import default_landmark_model, fit_face, load_input
 
-    model = load_estimator(args.model)
+    model = load_estimator(args.model, mirror_average=_mirror_choice(args))
     image, camera, source = load_input(args.image, args.camera)
     fit = fit_face(image, camera, default_landmark_model(), source=source)
     g, sample = predict_image(model, image, fit, model.normalization)
@@ -1096,6 +1120,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "gaze_vector_camera": np.round(g, 6).tolist(),
         "gaze_pitchyaw_camera_deg": np.round(np.degrees(vector_to_pitchyaw(g)), 3).tolist(),
         "gaze_origin_mm": np.round(origin, 2).tolist(),
+        "mirror_average": _mirror_applied(model),
     }
     if args.output is not None:
         import cv2

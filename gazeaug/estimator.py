@@ -118,20 +118,35 @@ class GazeEstimator:
         self.predict(blank, blank, np.zeros((1, 2)), np.zeros((1, fh, fw, 3), np.uint8))
 
 
-def load_estimator(path: str | Path, device: str = "cpu") -> GazeEstimator:
+def load_estimator(path: str | Path, device: str = "cpu", *, mirror_average: bool | None = None) -> GazeEstimator:
     """Load a ``.pt`` model file or an ``.onnx`` export (module docstring).
 
+    Args:
+        path: the model file.
+        device: ``cpu`` or ``cuda`` (``.pt`` only; an ``.onnx`` file runs on the CPU).
+        mirror_average: None (default): as the file says; False: the network read plainly, without
+            averaging with the mirrored eyes; True: averaged (:func:`gazeaug.train.load_model`). An
+            ``.onnx`` export has the averaging in its graph or not: asking it otherwise is an error.
+
     Raises:
-        GazeAugError: a missing or unusable file, an ONNX file without gazeaug's metadata.
+        GazeAugError: a missing or unusable file, an ONNX file without gazeaug's metadata; a
+            ``mirror_average`` an ONNX graph does not do.
         ImportError: ``.onnx`` without ONNX Runtime installed (:data:`ONNX_INSTALL_HINT`).
     """
     p = Path(path)
     if p.suffix.lower() == ".onnx":
-        return _load_onnx(p)
+        est = _load_onnx(p)
+        graph = est.meta.get("gazeaug.mirror_average", "false") == "true"
+        if mirror_average is not None and bool(mirror_average) != graph:
+            raise GazeAugError(
+                f"{p}: the ONNX graph {'averages' if graph else 'does not average'} with the mirrored eyes "
+                f"(it was exported so); mirror averaging {'on' if mirror_average else 'off'} needs the .pt model"
+            )
+        return est
     from .evaluate import settings_from_meta
     from .train import load_model
 
-    model, meta = load_model(p, device=device)
+    model, meta = load_model(p, device=device, mirror_average=mirror_average)
     norm = settings_from_meta(meta)  # without a face patch unless the model reads one: test time samples that
     return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model)
 

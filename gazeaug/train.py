@@ -546,7 +546,9 @@ def _load_weights(model: Any, state: dict[str, Any], path: Path, what: str) -> N
     model.load_state_dict(state)
 
 
-def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, Any]]:
+def load_model(
+    path: str | Path, device: str = "cpu", *, mirror_average: bool | None = None
+) -> tuple[Any, dict[str, Any]]:
     """A model saved by :func:`train` and its metadata (name, options, preprocessing, normalization, log).
 
     The file is read with PyTorch's restricted unpickler (tensors and plain values only): a file
@@ -564,6 +566,11 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     :func:`gazeaug.models.shift.shift_averaged` inside the mirror averaging;
     ``meta["shift_average_px"]`` says by how much.
 
+    ``mirror_average`` (default None: as the file says) overrides the file's mirror averaging:
+    False reads the network plainly (a model trained on the very people it reads is better so:
+    docs/model.md), True averages a file that does not. ``meta["mirror_average"]`` says what is
+    applied, ``meta["mirror_average_file"]`` what the file says.
+
     The metadata are checked: the weights must be finite, ``normalization`` a dict that
     :meth:`NormalizationSettings.from_dict` accepts (an absent key takes its default; ``meta``
     holds it in full) and ``patch_size_wh`` two integers within the settings' bounds.
@@ -573,9 +580,11 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
             input preprocessing; non-finite weights; unusable ``normalization`` or ``patch_size_wh``;
             a ``prediction`` entry that is not ``{"mirror_average": bool, "shift_average_px": int}``
             (a translation not smaller than the patch's sides included); a model that reads a face
-            patch whose normalization makes none.
+            patch whose normalization makes none; a ``mirror_average`` that is not None, True or False.
     """
     p = Path(path)
+    if mirror_average is not None and not isinstance(mirror_average, (bool, np.bool_)):
+        raise GazeAugError(f"mirror_average: expected None, True or False, got {mirror_average!r}")
     obj = _load_plain(p, "gazeaug model")
     if obj.get("format") != MODEL_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug model (no '{MODEL_FORMAT}' format mark)")
@@ -602,7 +611,8 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
             raise GazeAugError(
                 f"{p}: the model reads a face patch, and its normalization makes none (face_patch_size_wh)"
             )
-    mirror, shift = _prediction(obj.get("prediction", {}), p, patch)
+    file_mirror, shift = _prediction(obj.get("prediction", {}), p, patch)
+    mirror = file_mirror if mirror_average is None else bool(mirror_average)
     if shift:
         from .models.shift import shift_averaged
 
@@ -621,6 +631,7 @@ def load_model(path: str | Path, device: str = "cpu") -> tuple[Any, dict[str, An
     meta["input_mode"] = input_mode
     meta["uses_face"] = uses_face(model)
     meta["mirror_average"] = mirror
+    meta["mirror_average_file"] = file_mirror
     meta["shift_average_px"] = shift
     meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
     meta["patch_size_wh"] = patch

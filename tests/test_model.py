@@ -644,6 +644,56 @@ def test_mirror_average_is_recorded_and_can_be_turned_off(tmp_path):
         load_model(tmp_path / "bad.pt")
 
 
+def test_mirror_average_can_be_chosen_when_loading(tmp_path, capsys):
+    # reading a file with mirror averaging off equals the same weights in a file that says off;
+    # turning it on equals the same weights in a file that says on
+    from gazeaug.estimator import load_estimator
+
+    data = _synthetic_h5(tmp_path / "t.h5", n=32)
+    train(data, tmp_path / "on.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
+    obj = torch.load(tmp_path / "on.pt", weights_only=True)
+    assert obj["prediction"]["mirror_average"] is True
+    obj["prediction"] = {**obj["prediction"], "mirror_average": False}
+    torch.save(obj, tmp_path / "off.pt")
+    rng = np.random.default_rng(3)
+    left, right = (rng.integers(0, 255, (6, 36, 60, 3), dtype=np.uint8) for _ in range(2))
+    head = rng.uniform(-0.3, 0.3, (6, 2))
+
+    def pred(path, **kw):
+        model, meta = load_model(path, **kw)
+        return predict_arrays(model, left, right, head), meta
+
+    on, off = pred(tmp_path / "on.pt")[0], pred(tmp_path / "off.pt")[0]
+    assert np.abs(on - off).max() > 1e-6  # the two readings differ for these weights
+    got, meta = pred(tmp_path / "on.pt", mirror_average=False)
+    np.testing.assert_allclose(got, off, atol=1e-6)
+    assert meta["mirror_average"] is False and meta["mirror_average_file"] is True
+    got, meta = pred(tmp_path / "off.pt", mirror_average=True)
+    np.testing.assert_allclose(got, on, atol=1e-6)
+    assert meta["mirror_average"] is True and meta["mirror_average_file"] is False
+    with pytest.raises(GazeAugError, match="mirror_average: expected None, True or False, got 'no'"):
+        load_model(tmp_path / "on.pt", mirror_average="no")  # type: ignore[arg-type]
+    # the CLI: evaluate reads it off on request and says how it read
+    for name, extra in (("a", ["--mirror-average", "off"]), ("b", [])):
+        model = tmp_path / ("on.pt" if name == "a" else "off.pt")
+        assert main(["evaluate", str(model), str(data), "-o", str(tmp_path / name), "--quiet", *extra]) == 0
+        line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert line["mirror_average"] is False
+    a, b = (json.loads((tmp_path / n / "errors.json").read_text()) for n in "ab")
+    assert a["mean_deg"] == pytest.approx(b["mean_deg"], abs=1e-4) and a["mirror_average"] is False
+    # an ONNX export has the averaging in its graph: asking otherwise is refused, in one line
+    assert main(["export", str(tmp_path / "on.pt"), "-o", str(tmp_path / "on.onnx")]) == 0
+    assert load_estimator(tmp_path / "on.onnx", mirror_average=True).kind == "onnx"
+    with pytest.raises(GazeAugError, match="the ONNX graph averages with the mirrored eyes .* needs the .pt model"):
+        load_estimator(tmp_path / "on.onnx", mirror_average=False)
+    capsys.readouterr()
+    cmd = ["evaluate", str(tmp_path / "on.onnx"), str(data), "-o", str(tmp_path / "c"), "--mirror-average", "off"]
+    assert main(cmd) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mirror averaging off needs the .pt model" in err[0]
+    assert not (tmp_path / "c").exists()
+
+
 # --------------------------------------------------------------------------- shift averaging
 
 
