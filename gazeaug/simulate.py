@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -1335,8 +1335,13 @@ def _sim_setup() -> None:
     _SIM_STATE["detector"] = default_landmark_model()
 
 
-def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Render and save the images of face ``task.index``: its ``labels.csv`` rows and ``simulation.jsonl`` records."""
+def _simulate_face(
+    task: _FaceTask, on_image: Callable[[], None] | None = None
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Render and save the images of face ``task.index``: its ``labels.csv`` rows and ``simulation.jsonl`` records.
+
+    ``on_image`` is called after each image is saved (the local run's progress bar).
+    """
     from facemesh.io import save_image_rgb
 
     s, rig, i, out = task.settings, task.rig, task.index, Path(task.out)
@@ -1385,6 +1390,8 @@ def _simulate_face(task: _FaceTask) -> tuple[list[dict[str, Any]], list[dict[str
                 "light": frame.light,
             }
         )
+        if on_image is not None:
+            on_image()
     return rows, truth
 
 
@@ -1420,10 +1427,10 @@ def _simulate_into(
         for i, face in enumerate(faces)
     )
 
-    def take(_i: int, result: tuple[list[dict[str, Any]], list[dict[str, Any]]]) -> None:
+    def take(_i: int, result: tuple[list[dict[str, Any]], list[dict[str, Any]]], counted: bool = False) -> None:
         rows.extend(result[0])
         truth.extend(result[1])
-        if bar is not None:
+        if bar is not None and not counted:  # a Ray actor's face arrives whole
             bar.update(len(result[0]))
 
     try:
@@ -1434,8 +1441,10 @@ def _simulate_into(
                 map_blocks(engine, tasks, _simulate_face, _sim_setup, on_result=take, interrupted=interrupted)
         else:
             _sim_setup()
+            shown = bar
+            tick = None if shown is None else (lambda: shown.update(1))  # here, image by image
             for i, task in tasks:
-                take(i, _simulate_face(task))
+                take(i, _simulate_face(task, tick), counted=True)
     finally:
         if bar is not None:
             bar.close()

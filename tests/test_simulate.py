@@ -128,3 +128,24 @@ def test_builtin_experiment_setup(tmp_path):
     assert truth["rig"]["name"] == "wheelchair"
     # every training image is its own simulated identity: 2 images of each training face, 2 subjects
     assert len({s.subject for s in tr}) == len(tr)
+
+
+def test_progress_bar_advances_image_by_image(tmp_path, monkeypatch):
+    # the bar counts each image as it is saved, not each face's images at once when the face ends
+    import tqdm
+
+    updates: list[int] = []
+
+    class Recorder:
+        def __init__(self, total: int, **_kw: object) -> None:
+            self.total = total
+
+        def update(self, n: int = 1) -> None:
+            updates.append(n)
+
+        def close(self) -> None:
+            updates.append(-1)
+
+    monkeypatch.setattr(tqdm, "tqdm", Recorder)
+    simulate([None], BUILTIN_RIGS["wheelchair"], tmp_path / "ds", per_face=3, progress=True)
+    assert updates == [1, 1, 1, -1]
