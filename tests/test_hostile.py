@@ -916,6 +916,24 @@ def test_a_ctrl_c_outside_main_is_one_line_and_130(monkeypatch, capsys, prog):
         signal_module.signal(signal_module.SIGINT, old)
 
 
+@pytest.mark.parametrize("prog", ["facemesh", "gazeaug"])
+def test_a_ctrl_c_while_the_cli_loads_is_one_line_and_130(tmp_path, prog):
+    # the console scripts' first module imports neither package until it runs: a Ctrl-C during
+    # those imports (numpy, OpenCV, the CLI's modules) is the one line, not a traceback
+    script = (
+        "import importlib, gazeaug_console\n"
+        "def interrupted(name):\n"
+        "    raise KeyboardInterrupt\n"
+        "importlib.import_module = interrupted\n"
+        f"gazeaug_console.{prog}()\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    assert res.stderr == f"{prog}: interrupted before it started; nothing was written\n"
+    # and the installed commands start from it
+    assert f"from gazeaug_console import {prog}" in (BIN / prog).read_text()
+
+
 def test_unreadable_inputs_exit_2(tmp_path):
     prefix = unprivileged_prefix()
     secret = tmp_path / "secret.glb"
