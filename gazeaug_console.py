@@ -10,7 +10,6 @@ over (a Ctrl-C during a command is the command's to report).
 from __future__ import annotations
 
 import importlib
-import signal
 import sys
 
 __all__ = ["facemesh", "gazeaug"]
@@ -20,7 +19,10 @@ def _run(module: str, prog: str) -> None:
     try:
         entry = importlib.import_module(module).entry
     except KeyboardInterrupt:
+        import signal  # here, not above: a Ctrl-C during that import would be a traceback
+
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C does not turn this line into a traceback
+        # the line facemesh.cli.console_entry prints for a Ctrl-C before main's own handling
         print(f"{prog}: interrupted before it started; nothing was written", file=sys.stderr)
         sys.exit(130)
     entry()

@@ -343,7 +343,7 @@ def console_entry(main: Callable[[], int], prog: str) -> None:
 
     try:
         code = main()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the same line as gazeaug_console's, for a Ctrl-C while the CLI loads
         print(f"{prog}: interrupted before it started; nothing was written", file=sys.stderr)
         code = 130
     signal.signal(signal.SIGINT, signal.SIG_IGN)

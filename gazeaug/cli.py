@@ -1068,13 +1068,6 @@ def _mirror_choice(args: argparse.Namespace) -> bool | None:
     return None if args.mirror_average is None else args.mirror_average == "on"
 
 
-def _mirror_applied(model: Any) -> bool:
-    """Whether a loaded estimator averages with the mirrored eyes (a .pt as loaded, a .onnx as exported)."""
-    if model.kind == "onnx":
-        return bool(model.meta.get("gazeaug.mirror_average", "false") == "true")
-    return bool(model.meta.get("mirror_average", False))
-
-
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from .errors import GazeAugError
     from .estimator import load_estimator
@@ -1091,7 +1084,6 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
         reader = open_dataset(args.dataset, args.format)
         result = evaluate_dataset(model, model.meta, reader, limit=args.limit, progress=not args.quiet, engine=engine)
-    result["mirror_average"] = _mirror_applied(model)
     paths = write_report(result, args.output)
     short = {k: result[k] for k in ("count", "mean_deg", "median_deg", "skipped", "mirror_average")}
     short["per_subject"] = {k: round(v["mean_deg"], 3) for k, v in result["per_subject"].items()}
@@ -1120,7 +1112,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         "gaze_vector_camera": np.round(g, 6).tolist(),
         "gaze_pitchyaw_camera_deg": np.round(np.degrees(vector_to_pitchyaw(g)), 3).tolist(),
         "gaze_origin_mm": np.round(origin, 2).tolist(),
-        "mirror_average": _mirror_applied(model),
+        "mirror_average": model.mirror_average,
     }
     if args.output is not None:
         import cv2

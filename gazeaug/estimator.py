@@ -57,6 +57,17 @@ class GazeEstimator:
     _runner: Any
 
     @property
+    def mirror_average(self) -> bool:
+        """True when the model's answers are averaged with its answers on the mirrored eyes.
+
+        A ``.pt`` model as loaded (its file's ``prediction`` entry, or ``load_estimator``'s
+        choice); an ``.onnx`` export as exported (``gazeaug.mirror_average``: its graph does it).
+        """
+        if self.kind == "pytorch":
+            return bool(self.meta.get("mirror_average", False))
+        return bool(self.meta.get("gazeaug.mirror_average", "false") == "true")
+
+    @property
     def uses_face(self) -> bool:
         """True when the model reads the normalized face patch too (give :meth:`predict` ``face``)."""
         if self.kind == "pytorch":
@@ -133,18 +144,20 @@ def load_estimator(path: str | Path, device: str = "cpu", *, mirror_average: boo
             ``mirror_average`` an ONNX graph does not do.
         ImportError: ``.onnx`` without ONNX Runtime installed (:data:`ONNX_INSTALL_HINT`).
     """
+    from .train import check_mirror_average, load_model
+
     p = Path(path)
+    mirror_average = check_mirror_average(mirror_average)
     if p.suffix.lower() == ".onnx":
         est = _load_onnx(p)
-        graph = est.meta.get("gazeaug.mirror_average", "false") == "true"
-        if mirror_average is not None and bool(mirror_average) != graph:
+        if mirror_average is not None and mirror_average != est.mirror_average:
             raise GazeAugError(
-                f"{p}: the ONNX graph {'averages' if graph else 'does not average'} with the mirrored eyes "
-                f"(it was exported so); mirror averaging {'on' if mirror_average else 'off'} needs the .pt model"
+                f"{p}: the ONNX graph {'averages' if est.mirror_average else 'does not average'} with the "
+                f"mirrored eyes (it was exported so); mirror averaging {'on' if mirror_average else 'off'} "
+                "needs the .pt model"
             )
         return est
     from .evaluate import settings_from_meta
-    from .train import load_model
 
     model, meta = load_model(p, device=device, mirror_average=mirror_average)
     norm = settings_from_meta(meta)  # without a face patch unless the model reads one: test time samples that

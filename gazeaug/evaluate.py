@@ -171,7 +171,15 @@ def evaluate_h5(model: Any | GazeEstimator, path: str | Path) -> dict[str, Any]:
         )
     ]
     out.update(source=str(path), kind="h5", skipped=0, skipped_samples=[], rows=rows, metrics=_metrics(rows))
+    out["mirror_average"] = _mirror_average(model)
     return out
+
+
+def _mirror_average(model: Any) -> bool:
+    """Whether ``model`` (an estimator or a PyTorch model) averages its answers with the mirrored eyes."""
+    if _is_estimator(model):
+        return bool(model.mirror_average)
+    return bool(getattr(model, "mirror_average", False))  # the wrapper of gazeaug.models.mirror says so
 
 
 def predict_image(
@@ -331,6 +339,7 @@ def evaluate_dataset(
         skipped_samples=skipped,
         rows=rows,
         metrics=_metrics(rows),
+        mirror_average=_mirror_average(model),
     )
     return out
 

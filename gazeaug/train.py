@@ -569,7 +569,7 @@ def load_model(
     ``mirror_average`` (default None: as the file says) overrides the file's mirror averaging:
     False reads the network plainly (a model trained on the very people it reads is better so:
     docs/model.md), True averages a file that does not. ``meta["mirror_average"]`` says what is
-    applied, ``meta["mirror_average_file"]`` what the file says.
+    applied; ``meta["prediction"]`` stays the file's own entry.
 
     The metadata are checked: the weights must be finite, ``normalization`` a dict that
     :meth:`NormalizationSettings.from_dict` accepts (an absent key takes its default; ``meta``
@@ -583,8 +583,7 @@ def load_model(
             patch whose normalization makes none; a ``mirror_average`` that is not None, True or False.
     """
     p = Path(path)
-    if mirror_average is not None and not isinstance(mirror_average, (bool, np.bool_)):
-        raise GazeAugError(f"mirror_average: expected None, True or False, got {mirror_average!r}")
+    mirror_average = check_mirror_average(mirror_average)
     obj = _load_plain(p, "gazeaug model")
     if obj.get("format") != MODEL_FORMAT:
         raise GazeAugError(f"{p}: not a gazeaug model (no '{MODEL_FORMAT}' format mark)")
@@ -631,11 +630,23 @@ def load_model(
     meta["input_mode"] = input_mode
     meta["uses_face"] = uses_face(model)
     meta["mirror_average"] = mirror
-    meta["mirror_average_file"] = file_mirror
     meta["shift_average_px"] = shift
     meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
     meta["patch_size_wh"] = patch
     return model, meta
+
+
+def check_mirror_average(value: Any) -> bool | None:
+    """A mirror-averaging choice when loading a model: None (as the file says), True or False.
+
+    Raises:
+        GazeAugError: anything else (a string such as ``"off"`` included).
+    """
+    if value is None:
+        return None
+    if not isinstance(value, (bool, np.bool_)):
+        raise GazeAugError(f"mirror_average: expected None, True or False, got {value!r:.80}")
+    return bool(value)
 
 
 def _prediction(value: Any, path: Path, patch_wh: Sequence[int]) -> tuple[bool, int]:

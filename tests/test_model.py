@@ -648,6 +648,7 @@ def test_mirror_average_can_be_chosen_when_loading(tmp_path, capsys):
     # reading a file with mirror averaging off equals the same weights in a file that says off;
     # turning it on equals the same weights in a file that says on
     from gazeaug.estimator import load_estimator
+    from gazeaug.evaluate import evaluate_h5
 
     data = _synthetic_h5(tmp_path / "t.h5", n=32)
     train(data, tmp_path / "on.pt", TrainSettings(epochs=1, batch_size=16), progress=False)
@@ -667,12 +668,13 @@ def test_mirror_average_can_be_chosen_when_loading(tmp_path, capsys):
     assert np.abs(on - off).max() > 1e-6  # the two readings differ for these weights
     got, meta = pred(tmp_path / "on.pt", mirror_average=False)
     np.testing.assert_allclose(got, off, atol=1e-6)
-    assert meta["mirror_average"] is False and meta["mirror_average_file"] is True
+    assert meta["mirror_average"] is False and meta["prediction"]["mirror_average"] is True  # the file's own
     got, meta = pred(tmp_path / "off.pt", mirror_average=True)
     np.testing.assert_allclose(got, on, atol=1e-6)
-    assert meta["mirror_average"] is True and meta["mirror_average_file"] is False
-    with pytest.raises(GazeAugError, match="mirror_average: expected None, True or False, got 'no'"):
-        load_model(tmp_path / "on.pt", mirror_average="no")  # type: ignore[arg-type]
+    assert meta["mirror_average"] is True and meta["prediction"]["mirror_average"] is False
+    for bad in ("no", "off", 1, np.array([True, False])):
+        with pytest.raises(GazeAugError, match="mirror_average: expected None, True or False, got"):
+            load_model(tmp_path / "on.pt", mirror_average=bad)  # type: ignore[arg-type]
     # the CLI: evaluate reads it off on request and says how it read
     for name, extra in (("a", ["--mirror-average", "off"]), ("b", [])):
         model = tmp_path / ("on.pt" if name == "a" else "off.pt")
@@ -683,9 +685,14 @@ def test_mirror_average_can_be_chosen_when_loading(tmp_path, capsys):
     assert a["mean_deg"] == pytest.approx(b["mean_deg"], abs=1e-4) and a["mirror_average"] is False
     # an ONNX export has the averaging in its graph: asking otherwise is refused, in one line
     assert main(["export", str(tmp_path / "on.pt"), "-o", str(tmp_path / "on.onnx")]) == 0
-    assert load_estimator(tmp_path / "on.onnx", mirror_average=True).kind == "onnx"
+    est = load_estimator(tmp_path / "on.onnx", mirror_average=True)
+    assert est.kind == "onnx" and est.mirror_average is True
+    assert evaluate_h5(est, data)["mirror_average"] is True  # the library records it, not only the CLI
     with pytest.raises(GazeAugError, match="the ONNX graph averages with the mirrored eyes .* needs the .pt model"):
         load_estimator(tmp_path / "on.onnx", mirror_average=False)
+    for bad in ("off", 1, np.array([True, False])):  # checked as for a .pt file
+        with pytest.raises(GazeAugError, match="mirror_average: expected None, True or False, got"):
+            load_estimator(tmp_path / "on.onnx", mirror_average=bad)  # type: ignore[arg-type]
     capsys.readouterr()
     cmd = ["evaluate", str(tmp_path / "on.onnx"), str(data), "-o", str(tmp_path / "c"), "--mirror-average", "off"]
     assert main(cmd) == 2
