@@ -1,0 +1,195 @@
+"""Issue 13's test read by a model that knows its people: what knowing the face, the eyes or the photo buys.
+
+``python benchmarks/person_floor.py -o OUT [--draw 1] [--cells own eyes photo] [--images 200]
+[--seeds 1] [--epochs N] [--data ../shared/data]``
+
+The test of ``benchmarks/generalization.py --seed DRAW`` (the other people of
+``benchmarks/people.py``, one simulated identity each, 15 images in the ``wheelchair`` rig,
+simulator seed ``DRAW + 1``) is simulated again with ``15 + --images`` images of each person:
+the simulator draws image ``j`` of face ``i`` from ``[seed, i, j]``, so images 0-14 are the
+test's head poses and targets and are dropped, and the others are new images of the test's
+people in the test's rig. Each cell trains the wide network (``mobilenet_gaze_wide``, training
+seed ``DRAW`` and then ``DRAW + 10``, ... for ``--seeds``; today's defaults otherwise) on those
+images and reads the test's 135 images with and without mirror averaging:
+
+- ``own``: the test people themselves (each person's face and eyes: the floor of this test);
+- ``eyes``: each person's face (the photo, face shape, head size, skin gain, glasses) with
+  eyes drawn anew for every image (eyeball, iris and pupil sizes, opening, lid drop, kappa,
+  sclera and iris colour, iris pattern): a model that knows the face but not the eyes;
+- ``photo``: each person's photo only, every identity parameter drawn anew for every image.
+
+The identity of image ``j`` in ``eyes`` and ``photo`` is the simulator's own draw ``k = j``
+(``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
+person's draw ``k = 0`` (the test's identity) by wrapping
+:func:`gazeaug.simulate.draw_subject` here, in this process.
+
+Prints one JSON line per cell, seed and reading: mean error, ratio to the constant guess, r of
+pitch and yaw, the error with each person's offset removed, the standard deviation of the
+per-person offsets (pitch, yaw, degrees) and the times. Everything lands in ``OUT/``; the sets
+are kept and reused by a later run with the same ``--draw`` and ``--images``.
+Measured in docs/model.md ("a known face with unknown eyes").
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from generalization import test_people  # noqa: E402  (benchmarks/generalization.py)
+
+#: The fields of a :class:`gazeaug.simulate.SubjectDraw` that make the face (the rest are the eyes).
+FACE_FIELDS = ("shape_coefficients", "head_scale", "skin_gain", "glasses", "texture_mix_pick", "texture_mix_weight")
+TEST_IMAGES = 15
+
+
+def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: int) -> None:
+    """The cell's images of the draw's test people (images 0-14, the test's poses, dropped)."""
+    import numpy as np
+
+    import gazeaug.simulate as sim
+    from gazeaug.sampling import BUILTIN_RIGS
+
+    per = TEST_IMAGES if cell == "test" else TEST_IMAGES + images
+    ids = 1 if cell in ("test", "own") else per
+    original = sim.draw_subject
+
+    def face_kept(settings: Any, rng: Any) -> Any:
+        seed, i, _k = (int(v) for v in rng.bit_generator.seed_seq.entropy)
+        new = original(settings, rng)
+        own = original(settings, np.random.default_rng([seed, i, 10**6]))  # the test's identity
+        return replace(new, **{f: getattr(own, f) for f in FACE_FIELDS})
+
+    if cell == "eyes":
+        sim.draw_subject = face_kept
+    try:
+        sim.simulate(
+            people,
+            BUILTIN_RIGS["wheelchair"],
+            folder,
+            per_face=per,
+            identities_per_face=ids,
+            seed=draw + 1,
+            settings=sim.SimSettings(),
+            progress=False,
+            overwrite=True,
+        )
+    finally:
+        sim.draw_subject = original
+    if cell != "test":
+        labels = folder / "labels.csv"
+        with labels.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        keep = [r for r in rows if int(Path(r["image"]).stem) >= TEST_IMAGES]
+        with labels.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(keep)
+
+
+def _normalize(folder: Path, out: Path) -> None:
+    from gazeaug.datasets import open_dataset
+    from gazeaug.jobs import JobSettings, run_dataset
+
+    run_dataset(open_dataset(folder), out, JobSettings(kind="normalize-dataset"), progress=False, overwrite=True)
+
+
+def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
+    import numpy as np
+
+    from gazeaug.estimator import load_estimator
+    from gazeaug.evaluate import evaluate_h5
+
+    res = evaluate_h5(load_estimator(model, mirror_average=mirror), test)
+    m = res["metrics"]
+    subj = np.array([r["subject"] for r in res["rows"]])
+    resid = np.degrees(
+        np.array(
+            [[r["pred_pitch_rad"] - r["true_pitch_rad"], r["pred_yaw_rad"] - r["true_yaw_rad"]] for r in res["rows"]]
+        )
+    )
+    offsets = np.array([resid[subj == s].mean(0) for s in sorted(set(subj.tolist()))])
+    return {
+        "mean_deg": round(res["mean_deg"], 2),
+        "median_deg": round(res["median_deg"], 2),
+        "constant_deg": round(m["constant_guess_deg"], 2),
+        "ratio_to_constant": round(m["ratio_to_constant"], 3),
+        "pearson_pitch": round(m["pearson_pitch"], 3),
+        "pearson_yaw": round(m["pearson_yaw"], 3),
+        "subject_offsets_removed_deg": round(m["subject_offsets_removed_deg"], 2),
+        "offset_sd_pitch_yaw_deg": [round(float(v), 2) for v in offsets.std(0, ddof=1)],
+    }
+
+
+def run() -> None:
+    """Simulate, normalize, train and read each cell (module docstring)."""
+    from gazeaug.train import TrainSettings, train
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-o", "--output", type=Path, required=True)
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
+    ap.add_argument("--cells", nargs="+", choices=("own", "eyes", "photo"), default=["own", "eyes", "photo"])
+    ap.add_argument("--images", type=int, default=200, help="training images of each test person (default 200)")
+    ap.add_argument("--seeds", type=int, default=1, help="trainings per cell (seeds DRAW, DRAW + 10, ...)")
+    ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the set's size")
+    args = ap.parse_args()
+    for name in ("draw", "images", "seeds"):
+        if getattr(args, name) < (0 if name == "draw" else 1):
+            ap.error(f"--{name}: expected an integer >= {0 if name == 'draw' else 1}, got {getattr(args, name)}")
+    if not (args.data / "faces").is_dir():
+        ap.exit(2, f"{args.data / 'faces'}: no such folder (--data: ../shared/data)\n")
+    warnings.simplefilter("ignore")
+    out = args.output
+    people = test_people(args.data, out / "people")
+    test = out / f"test_draw{args.draw}.h5"
+    if not test.is_file():
+        _simulate(people, out / f"test_draw{args.draw}", args.draw, "test", 0)
+        _normalize(out / f"test_draw{args.draw}", test)
+    for cell in args.cells:
+        t0 = time.perf_counter()
+        name = f"{cell}_draw{args.draw}_{args.images}"
+        data = out / f"{name}.h5"
+        if not data.is_file():
+            _simulate(people, out / name, args.draw, cell, args.images)
+            _normalize(out / name, data)
+        t_set = time.perf_counter() - t0
+        for k in range(args.seeds):
+            seed = args.draw + 10 * k
+            model = out / f"{name}_seed{seed}.pt"
+            t1 = time.perf_counter()
+            if not model.is_file():
+                settings = TrainSettings(seed=seed, model="mobilenet_gaze_wide", epochs=args.epochs)
+                train(data, model, settings, progress=False)
+            t_train = time.perf_counter() - t1
+            for mirror in (False, True):
+                row = {"cell": cell, "draw": args.draw, "images": args.images, "seed": seed, "mirror_average": mirror}
+                row.update(_read(model, test, mirror), set_s=round(t_set, 1), train_s=round(t_train, 1))
+                print(json.dumps(row), flush=True)
+
+
+def main() -> None:
+    """Run it: a library error or an unwritable OUT gives one line and exit 2, Ctrl-C exit 130."""
+    from facemesh.types import FaceMeshError
+
+    try:
+        run()
+    except (FaceMeshError, OSError) as exc:
+        print(f"person_floor: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        print("person_floor: interrupted", file=sys.stderr)
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()
