@@ -26,7 +26,8 @@ person's draw ``k = 0`` (the test's identity) by wrapping
 Prints one JSON line per cell, seed and reading: mean error, ratio to the constant guess, r of
 pitch and yaw, the error with each person's offset removed, the standard deviation of the
 per-person offsets (pitch, yaw, degrees) and the times. Everything lands in ``OUT/``; the sets
-are kept and reused by a later run with the same ``--draw`` and ``--images``.
+and the trained models are kept and reused by a later run with the same ``--draw``,
+``--images`` and ``--epochs`` (the file names carry them; delete a file to make it again).
 Measured in docs/model.md ("a known face with unknown eyes").
 """
 
@@ -165,7 +166,7 @@ def run() -> None:
         t_set = time.perf_counter() - t0
         for k in range(args.seeds):
             seed = args.draw + 10 * k
-            model = out / f"{name}_seed{seed}.pt"
+            model = out / f"{name}_seed{seed}{'' if args.epochs is None else f'_epochs{args.epochs}'}.pt"
             t1 = time.perf_counter()
             if not model.is_file():
                 settings = TrainSettings(seed=seed, model="mobilenet_gaze_wide", epochs=args.epochs)
