@@ -1442,7 +1442,12 @@ def _simulate_into(
         else:
             _sim_setup()
             shown = bar
-            tick = None if shown is None else (lambda: shown.update(1))  # here, image by image
+
+            def each_image() -> None:  # here the bar advances image by image
+                if shown is not None:
+                    shown.update(1)
+
+            tick = None if shown is None else each_image
             for i, task in tasks:
                 take(i, _simulate_face(task, tick), counted=True)
     finally:
