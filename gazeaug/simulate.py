@@ -29,6 +29,7 @@ import math
 import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -1336,7 +1337,7 @@ def _sim_setup() -> None:
 
 
 def _simulate_face(
-    task: _FaceTask, on_image: Callable[[], None] | None = None
+    task: _FaceTask, on_image: Callable[[], object] | None = None
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Render and save the images of face ``task.index``: its ``labels.csv`` rows and ``simulation.jsonl`` records.
 
@@ -1441,13 +1442,7 @@ def _simulate_into(
                 map_blocks(engine, tasks, _simulate_face, _sim_setup, on_result=take, interrupted=interrupted)
         else:
             _sim_setup()
-            shown = bar
-
-            def each_image() -> None:  # here the bar advances image by image
-                if shown is not None:
-                    shown.update(1)
-
-            tick = None if shown is None else each_image
+            tick = None if bar is None else partial(bar.update, 1)  # here the bar advances image by image
             for i, task in tasks:
                 take(i, _simulate_face(task, tick), counted=True)
     finally:

@@ -611,7 +611,7 @@ def load_model(
                 f"{p}: the model reads a face patch, and its normalization makes none (face_patch_size_wh)"
             )
     file_mirror, shift = _prediction(obj.get("prediction", {}), p, patch)
-    mirror = file_mirror if mirror_average is None else bool(mirror_average)
+    mirror = file_mirror if mirror_average is None else mirror_average
     if shift:
         from .models.shift import shift_averaged
 
