@@ -1,6 +1,6 @@
 """Gaze-model speed: training samples per second and ``predict`` images per second end to end.
 
-``python benchmarks/bench_model.py`` builds a synthetic training set of 4096 rows
+``python benchmarks/bench_model.py [--data ../shared/data]`` builds a synthetic training set of 4096 rows
 (random 36 x 60 patches, the default schema), trains the default model for 2
 epochs (batch 256) and reports the samples per second of the second epoch; then
 times ``predict`` on the photos of ../shared/data/faces (image decoding,
@@ -10,6 +10,7 @@ excluded). One JSON line each.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import tempfile
@@ -59,8 +60,12 @@ def synthetic(path: Path, n: int) -> Path:
 
 def main() -> None:
     """Run both measurements."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    data = ap.parse_args().data
+    if not (data / "faces").is_dir():
+        ap.exit(2, f"{data / 'faces'}: no such folder (--data: ../shared/data)\n")
     warnings.simplefilter("ignore")
-    data = Path(__file__).resolve().parents[2] / "shared" / "data"
     import torch
 
     with tempfile.TemporaryDirectory() as tmp:
