@@ -16,7 +16,12 @@ images and reads the test's 135 images with and without mirror averaging:
 - ``eyes``: each person's face (the photo, face shape, head size, skin gain, glasses) with
   eyes drawn anew for every image (eyeball, iris and pupil sizes, opening, lid drop, kappa,
   sclera and iris colour, iris pattern): a model that knows the face but not the eyes;
-- ``photo``: each person's photo only, every identity parameter drawn anew for every image.
+- ``photo``: each person's photo only, every identity parameter drawn anew for every image;
+- ``others``: the 9 training photos of ``benchmarks/people.py`` instead of the test people's,
+  ``--images`` images of each in the test's rig, every identity drawn anew for every image
+  (simulator seed ``DRAW``, the recipe's training seed, so identity ``k`` of a photo is the
+  recipe's): the ``photo`` cell's design without knowing the test photos, beside the recipe
+  (``benchmarks/generalization.py``: screen-rig images, eyes redirected to the test's rig).
 
 The identity of image ``j`` in ``eyes`` and ``photo`` is the simulator's own draw ``k = j``
 (``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
@@ -28,7 +33,8 @@ pitch and yaw, the error with each person's offset removed, the standard deviati
 per-person offsets (pitch, yaw, degrees) and the times. Everything lands in ``OUT/``; the sets
 and the trained models are kept and reused by a later run with the same ``--draw``,
 ``--images`` and ``--epochs`` (the file names carry them; delete a file to make it again).
-Measured in docs/model.md ("a known face with unknown eyes").
+Measured in docs/model.md ("a known face with unknown eyes"; ``others``: "the photo known, or
+the design without it").
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from generalization import test_people  # noqa: E402  (benchmarks/generalization.py)
+from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py)
 
 #: The fields of a :class:`gazeaug.simulate.SubjectDraw` that make the face (the rest are the eyes).
 FACE_FIELDS = ("shape_coefficients", "head_scale", "skin_gain", "glasses", "texture_mix_pick", "texture_mix_weight")
@@ -60,7 +67,8 @@ def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: in
     import gazeaug.simulate as sim
     from gazeaug.sampling import BUILTIN_RIGS
 
-    per = TEST_IMAGES if cell == "test" else TEST_IMAGES + images
+    first = 0 if cell == "others" else TEST_IMAGES  # images kept: first, first + 1, ...
+    per = TEST_IMAGES if cell == "test" else first + images
     ids = 1 if cell in ("test", "own") else per
     original = sim.draw_subject
 
@@ -79,14 +87,14 @@ def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: in
             folder,
             per_face=per,
             identities_per_face=ids,
-            seed=draw + 1,
+            seed=draw if cell == "others" else draw + 1,
             settings=sim.SimSettings(),
             progress=False,
             overwrite=True,
         )
     finally:
         sim.draw_subject = original
-    if cell != "test":
+    if cell not in ("test", "others"):
         labels = folder / "labels.csv"
         with labels.open(newline="") as fh:
             rows = list(csv.DictReader(fh))
@@ -139,7 +147,7 @@ def run() -> None:
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
-    ap.add_argument("--cells", nargs="+", choices=("own", "eyes", "photo"), default=["own", "eyes", "photo"])
+    ap.add_argument("--cells", nargs="+", choices=("own", "eyes", "photo", "others"), default=["own", "eyes", "photo"])
     ap.add_argument("--images", type=int, default=200, help="training images of each test person (default 200)")
     ap.add_argument("--seeds", type=int, default=1, help="trainings per cell (seeds DRAW, DRAW + 10, ...)")
     ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the set's size")
@@ -161,7 +169,8 @@ def run() -> None:
         name = f"{cell}_draw{args.draw}_{args.images}"
         data = out / f"{name}.h5"
         if not data.is_file():
-            _simulate(people, out / name, args.draw, cell, args.images)
+            faces = [args.data / "faces" / n for n in TRAIN_PHOTOS] if cell == "others" else people
+            _simulate(faces, out / name, args.draw, cell, args.images)
             _normalize(out / name, data)
         t_set = time.perf_counter() - t0
         for k in range(args.seeds):
