@@ -23,7 +23,7 @@ images and reads the test's 135 images with and without mirror averaging:
   recipe's): the ``photo`` cell's design without knowing the test photos, beside the recipe
   (``benchmarks/generalization.py``: screen-rig images, eyes redirected to the test's rig).
 
-The identity of image ``j`` in ``eyes`` and ``photo`` is the simulator's own draw ``k = j``
+The identity of image ``j`` in ``eyes``, ``photo`` and ``others`` is the simulator's own draw ``k = j``
 (``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
 person's draw ``k = 0`` (the test's identity) by wrapping
 :func:`gazeaug.simulate.draw_subject` here, in this process.
@@ -61,7 +61,7 @@ TEST_IMAGES = 15
 
 
 def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: int) -> None:
-    """The cell's images of the draw's test people (images 0-14, the test's poses, dropped)."""
+    """The cell's images of ``people`` (test people: images 0-14, the test's poses, dropped; ``others``: all kept)."""
     import numpy as np
 
     import gazeaug.simulate as sim
@@ -148,7 +148,7 @@ def run() -> None:
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
     ap.add_argument("--cells", nargs="+", choices=("own", "eyes", "photo", "others"), default=["own", "eyes", "photo"])
-    ap.add_argument("--images", type=int, default=200, help="training images of each test person (default 200)")
+    ap.add_argument("--images", type=int, default=200, help="training images of each person or photo (default 200)")
     ap.add_argument("--seeds", type=int, default=1, help="trainings per cell (seeds DRAW, DRAW + 10, ...)")
     ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the set's size")
     args = ap.parse_args()

@@ -3,7 +3,8 @@
 The docs give each measured figure with the command that made it, mostly inline (in backticks,
 often broken over two lines). Those commands are not run here (they take minutes to hours), but
 their script must exist and accept their options: one Python process imports each script as
-``__main__`` with the quoted arguments and stops it right after ``argparse`` has parsed them.
+``__main__`` with the quoted arguments and stops it right after ``argparse`` has parsed them
+(checks a script makes after parsing, such as ranges, are not reached).
 Placeholders are filled in first: a single capital letter (``D``, ``S``, ``W``, ``H``) is a
 number, and an optional group in brackets (``[--face-patch W H]``) is kept
 with its brackets removed.
@@ -18,7 +19,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-QUOTED = re.compile(r"`(python3? benchmarks/[^`]+)`")
+# An optional environment prefix (`VAR=value python benchmarks/...`) is dropped.
+QUOTED = re.compile(r"`(?:[A-Z_]+=\S+\s+)*(python3? benchmarks/[^`]+)`")
 
 # Runs in a child process: argv[1] is a JSON list of [script, [args...]]; prints one JSON result per command.
 DRIVER = r"""
@@ -28,13 +30,26 @@ warnings.simplefilter("ignore")
 class Parsed(BaseException):
     pass
 
-original = argparse.ArgumentParser.parse_args
+parse_args = argparse.ArgumentParser.parse_args
+parse_known_args = argparse.ArgumentParser.parse_known_args
+inside = []
 
 def parse_then_stop(self, *a, **k):
-    original(self, *a, **k)
+    inside.append(1)
+    try:
+        parse_args(self, *a, **k)  # unknown options are refused here, after parse_known_args
+    finally:
+        inside.pop()
     raise Parsed
 
+def parse_known_then_stop(self, *a, **k):
+    result = parse_known_args(self, *a, **k)
+    if inside:  # called by parse_args: let it check the rest
+        return result
+    raise Parsed  # a script that parses with parse_known_args itself
+
 argparse.ArgumentParser.parse_args = parse_then_stop
+argparse.ArgumentParser.parse_known_args = parse_known_then_stop
 for script, args in json.loads(sys.argv[1]):
     err = io.StringIO()
     sys.argv = [script, *args]
@@ -69,8 +84,12 @@ def quoted_commands() -> list[tuple[str, list[str]]]:
 
 def test_the_docs_quote_benchmark_commands() -> None:
     """The collector finds the commands (a broken pattern would make the test below vacuous)."""
-    scripts = {script for script, _ in quoted_commands()}
+    commands = quoted_commands()
+    scripts = {script for script, _ in commands}
     assert {"benchmarks/generalization.py", "benchmarks/person_floor.py", "benchmarks/bench_train.py"} <= scripts
+    assert len(commands) >= 30
+    quoted = QUOTED.fullmatch("`PYTHONPATH=/x XP=1 python benchmarks/a.py -o\nOUT`")
+    assert quoted is not None and quoted.group(1) == "python benchmarks/a.py -o\nOUT"
 
 
 def test_every_quoted_benchmark_command_parses() -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
-FENCE = re.compile(r"^```.*?^```", re.S | re.M)
+FENCE = re.compile(r"^[ \t]*(```|~~~).*?^[ \t]*\1", re.S | re.M)  # indented ones too (list items)
 LINK = re.compile(r"\]\(([^)\s#]*)(?:#([^)\s]+))?\)")
 
 
@@ -38,11 +38,11 @@ def test_anchor_is_githubs() -> None:
     assert anchor("Measured: the photo known, or the design (2026-11-30)") == (
         "measured-the-photo-known-or-the-design-2026-11-30"
     )
-    assert anchors("# A\n## A\n```\n# B\n```\n## B_c x\n") == {"a", "a-1", "b_c-x"}
+    assert anchors("# A\n## A\n```\n# B\n```\n## B_c x\n  ~~~\n# C\n  ~~~\n") == {"a", "a-1", "b_c-x"}
 
 
 def test_every_relative_link_and_anchor_resolves() -> None:
-    bad = []
+    bad, checked, anchored = [], 0, 0
     for doc in DOCS:
         text = doc.read_text(encoding="utf-8")
         for match in LINK.finditer(FENCE.sub("", text)):
@@ -50,9 +50,11 @@ def test_every_relative_link_and_anchor_resolves() -> None:
             if re.match(r"[a-z]+:", path):  # https:, mailto:
                 continue
             target = (doc.parent / path).resolve() if path else doc
+            checked, anchored = checked + 1, anchored + bool(fragment)
             where = f"{doc.relative_to(REPO)}: ({path}{'#' + fragment if fragment else ''})"
             if not target.exists():
                 bad.append(f"{where}: no such file")
             elif fragment and target.suffix == ".md" and fragment not in anchors(target.read_text(encoding="utf-8")):
                 bad.append(f"{where}: no such heading")
+    assert checked >= 100 and anchored >= 50, f"the patterns found only {checked} links, {anchored} with an anchor"
     assert not bad, "\n".join(bad)
