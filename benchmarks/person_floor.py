@@ -95,14 +95,12 @@ def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: in
     finally:
         sim.draw_subject = original
     if cell not in ("test", "others"):
+        from gazeaug.datasets.folder import write_labels_csv
+
         labels = folder / "labels.csv"
         with labels.open(newline="") as fh:
             rows = list(csv.DictReader(fh))
-        keep = [r for r in rows if int(Path(r["image"]).stem) >= TEST_IMAGES]
-        with labels.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(keep)
+        write_labels_csv(labels, [r for r in rows if int(Path(r["image"]).stem) >= TEST_IMAGES])
 
 
 def _normalize(folder: Path, out: Path) -> None:
@@ -117,16 +115,14 @@ def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
 
     from gazeaug.estimator import load_estimator
     from gazeaug.evaluate import evaluate_h5
+    from gazeaug.metrics import global_offset
 
     res = evaluate_h5(load_estimator(model, mirror_average=mirror), test)
     m = res["metrics"]
     subj = np.array([r["subject"] for r in res["rows"]])
-    resid = np.degrees(
-        np.array(
-            [[r["pred_pitch_rad"] - r["true_pitch_rad"], r["pred_yaw_rad"] - r["true_yaw_rad"]] for r in res["rows"]]
-        )
-    )
-    offsets = np.array([resid[subj == s].mean(0) for s in sorted(set(subj.tolist()))])
+    pred = np.array([[r["pred_pitch_rad"], r["pred_yaw_rad"]] for r in res["rows"]])
+    true = np.array([[r["true_pitch_rad"], r["true_yaw_rad"]] for r in res["rows"]])
+    offsets = np.degrees([global_offset(pred[subj == s], true[subj == s]) for s in sorted(set(subj.tolist()))])
     return {
         "mean_deg": round(res["mean_deg"], 2),
         "median_deg": round(res["median_deg"], 2),

@@ -16,9 +16,9 @@ import json
 import re
 import subprocess
 import sys
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from doc_snippets import DOCS, REPO
+
 # An optional environment prefix (`VAR=value python benchmarks/...`) is dropped.
 QUOTED = re.compile(r"`(?:[A-Z_]+=\S+\s+)*(python3? benchmarks/[^`]+)`")
 
@@ -74,7 +74,7 @@ for script, args in json.loads(sys.argv[1]):
 def quoted_commands() -> list[tuple[str, list[str]]]:
     """``(script, args)`` of every distinct quoted benchmark command, placeholders filled in."""
     found: dict[str, tuple[str, list[str]]] = {}
-    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+    for doc in DOCS:
         for match in QUOTED.finditer(doc.read_text(encoding="utf-8")):
             words = match.group(1).replace("[", " ").replace("]", " ").split()[1:]
             words = ["7" if re.fullmatch(r"[A-Z]", w) else w for w in words]

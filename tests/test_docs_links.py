@@ -8,10 +8,11 @@ Anchors are GitHub's: the heading's text lowercased, every character but letters
 from __future__ import annotations
 
 import re
+from functools import cache
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+from doc_snippets import DOCS, REPO
+
 FENCE = re.compile(r"^[ \t]*(```|~~~).*?^[ \t]*\1", re.S | re.M)  # indented ones too (list items)
 LINK = re.compile(r"\]\(([^)\s#]*)(?:#([^)\s]+))?\)")
 
@@ -31,6 +32,11 @@ def anchors(text: str) -> set[str]:
         out.add(base if n == 0 else f"{base}-{n}")
         seen[base] = n + 1
     return out
+
+
+@cache
+def _anchors_of(doc: Path) -> set[str]:
+    return anchors(doc.read_text(encoding="utf-8"))
 
 
 def test_anchor_is_githubs() -> None:
@@ -54,7 +60,7 @@ def test_every_relative_link_and_anchor_resolves() -> None:
             where = f"{doc.relative_to(REPO)}: ({path}{'#' + fragment if fragment else ''})"
             if not target.exists():
                 bad.append(f"{where}: no such file")
-            elif fragment and target.suffix == ".md" and fragment not in anchors(target.read_text(encoding="utf-8")):
+            elif fragment and target.suffix == ".md" and fragment not in _anchors_of(target):
                 bad.append(f"{where}: no such heading")
     assert checked >= 100 and anchored >= 50, f"the patterns found only {checked} links, {anchored} with an anchor"
     assert not bad, "\n".join(bad)
