@@ -1,7 +1,7 @@
 """Issue 13's test read by a model that knows its people: what knowing the face, the eyes or the photo buys.
 
 ``python benchmarks/person_floor.py -o OUT [--draw 1] [--cells own eyes photo] [--images 200]
-[--seeds 1] [--epochs N] [--data ../shared/data]``
+[--seeds 1] [--epochs N] [--halves even odd] [--data ../shared/data]``
 
 The test of ``benchmarks/generalization.py --seed DRAW`` (the other people of
 ``benchmarks/people.py``, one simulated identity each, 15 images in the ``wheelchair`` rig,
@@ -21,7 +21,14 @@ images and reads the test's 135 images with and without mirror averaging:
   ``--images`` images of each in the test's rig, every identity drawn anew for every image
   (simulator seed ``DRAW``, the recipe's training seed, so identity ``k`` of a photo is the
   recipe's): the ``photo`` cell's design without knowing the test photos, beside the recipe
-  (``benchmarks/generalization.py``: screen-rig images, eyes redirected to the test's rig).
+  (``benchmarks/generalization.py``: screen-rig images, eyes redirected to the test's rig);
+- ``mixed``: the ``others`` rows joined with the ``photo`` rows of half the test people (two
+  models: the even-numbered people seen, then the odd-numbered), so one model reads people whose
+  photo it has seen among 9 others and people whose photo it has not (printed apart as
+  ``seen_deg`` and ``unseen_deg``): a photo mixed in among other training photos. To train the
+  two at once, run ``--halves even`` and ``--halves odd`` as two processes, the second once the
+  ``others`` and ``photo`` sets exist (once the first has written ``mixedeven_*.h5``): two
+  processes would otherwise simulate the same set.
 
 The identity of image ``j`` in ``eyes``, ``photo`` and ``others`` is the simulator's own draw ``k = j``
 (``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
@@ -30,11 +37,12 @@ person's draw ``k = 0`` (the test's identity) by wrapping
 
 Prints one JSON line per cell, seed and reading: mean error, ratio to the constant guess, r of
 pitch and yaw, the error with each person's offset removed, the standard deviation of the
-per-person offsets (pitch, yaw, degrees) and the times. Everything lands in ``OUT/``; the sets
+per-person offsets (pitch, yaw, degrees), each person's mean error (``per_person_deg``) and the
+times. Everything lands in ``OUT/``; the sets
 and the trained models are kept and reused by a later run with the same ``--draw``,
 ``--images`` and ``--epochs`` (the file names carry them; delete a file to make it again).
 Measured in docs/model.md ("a known face with unknown eyes"; ``others``: "the photo known, or
-the design without it").
+the design without it"; ``mixed``: "a photo among other photos").
 """
 
 from __future__ import annotations
@@ -110,19 +118,55 @@ def _normalize(folder: Path, out: Path) -> None:
     run_dataset(open_dataset(folder), out, JobSettings(kind="normalize-dataset"), progress=False, overwrite=True)
 
 
+def _join(others: Path, photo: Path, seen: list[int], out: Path) -> None:
+    """``others``' rows, then ``photo``'s rows of the test people ``seen`` (subjects renamed ``testNNiK``).
+
+    The photo rows' subjects (``simNNiK``, as the others' training photos are named) get the prefix
+    ``test`` and their source indices follow the others', so no subject or source is shared.
+    """
+    import numpy as np
+
+    from gazeaug.io_h5 import H5Writer, Rows, read_h5
+
+    a, b = read_h5(others), read_h5(photo)
+    keys = [k for k in a if k != "attrs"]
+    keep = np.array([int(s[3:5]) in seen for s in b["subject"]])
+    b = {k: b[k][keep] for k in keys}
+    b["subject"] = np.array([b"test" + s[3:] for s in b["subject"]])
+    b["source_index"] = b["source_index"] + int(a["attrs"]["next_source_index"])
+    h, w = a["left_eye"].shape[1:3]
+    face = (a["face"].shape[2], a["face"].shape[1]) if "face" in a else None
+    attrs = {
+        "kind": "normalize-dataset",
+        "gazeaug_version": a["attrs"].get("gazeaug_version"),
+        "settings": a["attrs"]["settings"],
+        "selection": {"joined": [str(others), str(photo)], "test_people_seen": seen},
+    }
+    writer = H5Writer(out, attrs, (w, h), face_patch_size_wh=face, overwrite=True)
+    try:
+        writer.append(Rows({k: a[k] for k in keys}), int(a["attrs"]["next_source_index"]) - 1)
+        writer.append(Rows(b), int(b["source_index"].max()))
+        writer.finish()
+    except BaseException:
+        writer.discard()
+        raise
+
+
 def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
     import numpy as np
 
     from gazeaug.estimator import load_estimator
     from gazeaug.evaluate import evaluate_h5
-    from gazeaug.metrics import global_offset
+    from gazeaug.metrics import angular_errors_deg, global_offset
 
     res = evaluate_h5(load_estimator(model, mirror_average=mirror), test)
     m = res["metrics"]
     subj = np.array([r["subject"] for r in res["rows"]])
     pred = np.array([[r["pred_pitch_rad"], r["pred_yaw_rad"]] for r in res["rows"]])
     true = np.array([[r["true_pitch_rad"], r["true_yaw_rad"]] for r in res["rows"]])
-    offsets = np.degrees([global_offset(pred[subj == s], true[subj == s]) for s in sorted(set(subj.tolist()))])
+    names = sorted(set(subj.tolist()))
+    offsets = np.degrees([global_offset(pred[subj == s], true[subj == s]) for s in names])
+    err = angular_errors_deg(pred, true)
     return {
         "mean_deg": round(res["mean_deg"], 2),
         "median_deg": round(res["median_deg"], 2),
@@ -132,6 +176,7 @@ def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
         "pearson_yaw": round(m["pearson_yaw"], 3),
         "subject_offsets_removed_deg": round(m["subject_offsets_removed_deg"], 2),
         "offset_sd_pitch_yaw_deg": [round(float(v), 2) for v in offsets.std(0, ddof=1)],
+        "per_person_deg": {s: round(float(err[subj == s].mean()), 2) for s in names},
     }
 
 
@@ -143,10 +188,20 @@ def run() -> None:
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
-    ap.add_argument("--cells", nargs="+", choices=("own", "eyes", "photo", "others"), default=["own", "eyes", "photo"])
+    ap.add_argument(
+        "--cells", nargs="+", choices=("own", "eyes", "photo", "others", "mixed"), default=["own", "eyes", "photo"]
+    )
     ap.add_argument("--images", type=int, default=200, help="training images of each person or photo (default 200)")
     ap.add_argument("--seeds", type=int, default=1, help="trainings per cell (seeds DRAW, DRAW + 10, ...)")
     ap.add_argument("--epochs", type=int, default=None, help="default: fitted to the set's size")
+    ap.add_argument(
+        "--halves",
+        nargs="+",
+        choices=("even", "odd"),
+        default=["even", "odd"],
+        help="the mixed cell's models: the even- or odd-numbered test people seen (default both; one each "
+        "lets two processes train them at once)",
+    )
     args = ap.parse_args()
     for name in ("draw", "images", "seeds"):
         if getattr(args, name) < (0 if name == "draw" else 1):
@@ -160,27 +215,55 @@ def run() -> None:
     if not test.is_file():
         _simulate(people, out / f"test_draw{args.draw}", args.draw, "test", 0)
         _normalize(out / f"test_draw{args.draw}", test)
-    for cell in args.cells:
-        t0 = time.perf_counter()
+
+    def made(cell: str) -> Path:
+        """The cell's normalized set, simulated and normalized unless a run before made it."""
         name = f"{cell}_draw{args.draw}_{args.images}"
         data = out / f"{name}.h5"
         if not data.is_file():
             faces = [args.data / "faces" / n for n in TRAIN_PHOTOS] if cell == "others" else people
             _simulate(faces, out / name, args.draw, cell, args.images)
             _normalize(out / name, data)
+        return data
+
+    for cell in args.cells:
+        t0 = time.perf_counter()
+        if cell == "mixed":
+            others, photo = made("others"), made("photo")
+            halves = {f"mixed{h}": list(range(int(h == "odd"), len(people), 2)) for h in args.halves}
+            sets = {}
+            for half, seen in halves.items():
+                sets[half] = out / f"{half}_draw{args.draw}_{args.images}.h5"
+                if not sets[half].is_file():
+                    _join(others, photo, seen, sets[half])
+        else:
+            halves = {cell: []}
+            sets = {cell: made(cell)}
         t_set = time.perf_counter() - t0
-        for k in range(args.seeds):
-            seed = args.draw + 10 * k
-            model = out / f"{name}_seed{seed}{'' if args.epochs is None else f'_epochs{args.epochs}'}.pt"
-            t1 = time.perf_counter()
-            if not model.is_file():
-                settings = TrainSettings(seed=seed, model="mobilenet_gaze_wide", epochs=args.epochs)
-                train(data, model, settings, progress=False)
-            t_train = time.perf_counter() - t1
-            for mirror in (False, True):
-                row = {"cell": cell, "draw": args.draw, "images": args.images, "seed": seed, "mirror_average": mirror}
-                row.update(_read(model, test, mirror), set_s=round(t_set, 1), train_s=round(t_train, 1))
-                print(json.dumps(row), flush=True)
+        for half, data in sets.items():
+            for k in range(args.seeds):
+                seed = args.draw + 10 * k
+                model = data.with_name(
+                    f"{data.stem}_seed{seed}{'' if args.epochs is None else f'_epochs{args.epochs}'}.pt"
+                )
+                t1 = time.perf_counter()
+                if not model.is_file():
+                    settings = TrainSettings(seed=seed, model="mobilenet_gaze_wide", epochs=args.epochs)
+                    train(data, model, settings, progress=False)
+                t_train = time.perf_counter() - t1
+                for mirror in (False, True):
+                    row = {"cell": half, "draw": args.draw, "images": args.images, "seed": seed}
+                    row.update(mirror_average=mirror, **_read(model, test, mirror))
+                    if cell == "mixed":
+                        seen = {f"sim{i:02d}" for i in halves[half]}
+                        per = row["per_person_deg"]  # the people with test rows (a face found)
+                        for key, group in (
+                            ("seen_deg", [v for p, v in per.items() if p in seen]),
+                            ("unseen_deg", [v for p, v in per.items() if p not in seen]),
+                        ):
+                            row[key] = round(sum(group) / len(group), 2) if group else None
+                    row.update(set_s=round(t_set, 1), train_s=round(t_train, 1))
+                    print(json.dumps(row), flush=True)
 
 
 def main() -> None:

@@ -122,7 +122,7 @@ def prepare_inputs(folder: Path) -> Path:
     shared = shared_data_dir()
     folder.mkdir(parents=True, exist_ok=True)
     astronaut = sample_image()
-    for name in ("photo.jpg", "a.jpg", "b.jpg"):
+    for name in ("photo.jpg", "a.jpg", "b.jpg", "user.jpg"):
         save_image_rgb(folder / name, astronaut)
     other = None if shared is None else shared / "faces" / "sergey.png"
     save_image_rgb(folder / "face.jpg", load_image_rgb(other) if other and other.is_file() else astronaut)
