@@ -133,7 +133,8 @@ def _join(others: Path, photo: Path, seen: list[int], out: Path) -> None:
     keep = np.array([int(s[3:5]) in seen for s in b["subject"]])
     b = {k: b[k][keep] for k in keys}
     b["subject"] = np.array([b"test" + s[3:] for s in b["subject"]])
-    b["source_index"] = b["source_index"] + int(a["attrs"]["next_source_index"])
+    first = int(a["attrs"]["next_source_index"])  # the photo rows' source indices start here
+    b["source_index"] = b["source_index"] + first
     h, w = a["left_eye"].shape[1:3]
     face = (a["face"].shape[2], a["face"].shape[1]) if "face" in a else None
     attrs = {
@@ -144,7 +145,7 @@ def _join(others: Path, photo: Path, seen: list[int], out: Path) -> None:
     }
     writer = H5Writer(out, attrs, (w, h), face_patch_size_wh=face, overwrite=True)
     try:
-        writer.append(Rows({k: a[k] for k in keys}), int(a["attrs"]["next_source_index"]) - 1)
+        writer.append(Rows({k: a[k] for k in keys}), first - 1)
         writer.append(Rows(b), int(b["source_index"].max()))
         writer.finish()
     except BaseException:
@@ -157,7 +158,7 @@ def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
 
     from gazeaug.estimator import load_estimator
     from gazeaug.evaluate import evaluate_h5
-    from gazeaug.metrics import angular_errors_deg, global_offset
+    from gazeaug.metrics import global_offset
 
     res = evaluate_h5(load_estimator(model, mirror_average=mirror), test)
     m = res["metrics"]
@@ -166,7 +167,6 @@ def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
     true = np.array([[r["true_pitch_rad"], r["true_yaw_rad"]] for r in res["rows"]])
     names = sorted(set(subj.tolist()))
     offsets = np.degrees([global_offset(pred[subj == s], true[subj == s]) for s in names])
-    err = angular_errors_deg(pred, true)
     return {
         "mean_deg": round(res["mean_deg"], 2),
         "median_deg": round(res["median_deg"], 2),
@@ -176,7 +176,7 @@ def _read(model: Path, test: Path, mirror: bool) -> dict[str, Any]:
         "pearson_yaw": round(m["pearson_yaw"], 3),
         "subject_offsets_removed_deg": round(m["subject_offsets_removed_deg"], 2),
         "offset_sd_pitch_yaw_deg": [round(float(v), 2) for v in offsets.std(0, ddof=1)],
-        "per_person_deg": {s: round(float(err[subj == s].mean()), 2) for s in names},
+        "per_person_deg": {s: round(v, 2) for s, v in m["per_subject_deg"].items()},
     }
 
 
