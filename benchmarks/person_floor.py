@@ -1,6 +1,6 @@
 """Issue 13's test read by a model that knows its people: what knowing the face, the eyes or the photo buys.
 
-``python benchmarks/person_floor.py -o OUT [--draw 1] [--cells own eyes photo] [--images 200]
+``python benchmarks/person_floor.py -o OUT [--draw 1] [--cells own eyes photo ...] [--images 200]
 [--seeds 1] [--epochs N] [--halves even odd] [--data ../shared/data]``
 
 The test of ``benchmarks/generalization.py --seed DRAW`` (the other people of
@@ -28,7 +28,18 @@ images and reads the test's 135 images with and without mirror averaging:
   ``seen_deg`` and ``unseen_deg``): a photo mixed in among other training photos. To train the
   two at once, run ``--halves even`` and ``--halves odd`` as two processes, the second once the
   ``others`` and ``photo`` sets exist (once the first has written ``mixedeven_*.h5``): two
-  processes would otherwise simulate the same set.
+  processes would otherwise simulate the same set;
+- ``frame``: the ``photo`` cell with another picture of the person where there is one: the three
+  test people taken from a video (``sim05``-``sim07``) are simulated from another moment of their
+  video (:data:`ENROL_FRAMES_S`), the others from their photo as in ``photo`` (the same images:
+  image ``j`` of person ``i`` is drawn from ``[seed, i, j]``, so they are a control for the
+  training's noise). The ``photo`` cell knows the very picture each test person was simulated
+  from; a user's enrolment photo is another picture of their face: this cell measures what that
+  costs (printed for the three as ``other_frame_deg``, for the rest as ``same_photo_deg``);
+- ``clip``: the same with four other frames of each video person (:data:`CLIP_FRAMES_S`, the
+  ``frame`` cell's among them; ``--images`` / 4 images of each frame, set ``clipframes``),
+  joined with the ``photo`` rows of the other six (``other_frames_deg``, ``same_photo_deg``):
+  a short clip of the user instead of one picture.
 
 The identity of image ``j`` in ``eyes``, ``photo`` and ``others`` is the simulator's own draw ``k = j``
 (``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
@@ -42,7 +53,8 @@ times. Everything lands in ``OUT/``; the sets
 and the trained models are kept and reused by a later run with the same ``--draw``,
 ``--images`` and ``--epochs`` (the file names carry them; delete a file to make it again).
 Measured in docs/model.md ("a known face with unknown eyes"; ``others``: "the photo known, or
-the design without it"; ``mixed``: "a photo among other photos").
+the design without it"; ``mixed``: "a photo among other photos"; ``frame`` and ``clip``: "another
+picture of the person").
 """
 
 from __future__ import annotations
@@ -61,11 +73,31 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from generalization import test_people  # noqa: E402  (benchmarks/generalization.py)
-from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py)
+from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
 
 #: The fields of a :class:`gazeaug.simulate.SubjectDraw` that make the face (the rest are the eyes).
 FACE_FIELDS = ("shape_coefficients", "head_scale", "skin_gain", "glasses", "texture_mix_pick", "texture_mix_weight")
 TEST_IMAGES = 15
+#: The cells whose people are printed in two groups: (the named group's key, the rest's key).
+GROUPS = {
+    "mixed": ("seen_deg", "unseen_deg"),
+    "frame": ("other_frame_deg", "same_photo_deg"),
+    "clip": ("other_frames_deg", "same_photo_deg"),
+}
+#: The ``frame`` cell's enrolment pictures: for each test person taken from a video (the video's
+#: most frontal usable frame, ``gazeaug.faces.video_face_sources``), another moment of the same
+#: video, in seconds, checked by eye to show the same person: video00 6.4 s after the test's
+#: frame (1.60 s), video01 5.8 s before it (7.80 s), video02 in another shot (the video shows two
+#: girls; the test's girl at 4.27 s looks up, at 7.07 s she looks down with her lids lowered).
+ENROL_FRAMES_S: dict[str, tuple[float, ...]] = {"video00": (8.00,), "video01": (2.00,), "video02": (7.07,)}
+#: The ``clip`` cell's enrolment pictures: four frames of each test person's video, at least 1 s
+#: from the test's frame, over the clip, the head within 20 deg of frontal (:data:`ENROL_FRAMES_S`'
+#: among them); video02's are its test girl's (5.33 s in the test's shot, the others in the next).
+CLIP_FRAMES_S: dict[str, tuple[float, ...]] = {
+    "video00": (4.16, 8.00, 12.48, 16.32),
+    "video01": (0.40, 1.20, 2.00, 6.40),
+    "video02": (5.33, 6.00, 6.80, 7.07),
+}
 
 
 def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: int) -> None:
@@ -109,6 +141,55 @@ def _simulate(people: list[Path], folder: Path, draw: int, cell: str, images: in
         with labels.open(newline="") as fh:
             rows = list(csv.DictReader(fh))
         write_labels_csv(labels, [r for r in rows if int(Path(r["image"]).stem) >= TEST_IMAGES])
+
+
+def enrolment_frames(
+    data: Path, people: list[Path], work: Path, times: dict[str, tuple[float, ...]]
+) -> dict[int, list[Path]]:
+    """Other frames of the test people taken from a video: for each, its video's frames at ``times[video]``.
+
+    Args:
+        data: the shared data folder (``../shared/data``).
+        people: the test people's pictures (``generalization.test_people``), for the count.
+        work: where the frames are written (PNG, ``personKK_tSS.SS.png``).
+        times: per video stem, the frames' times in seconds (:data:`ENROL_FRAMES_S`, :data:`CLIP_FRAMES_S`).
+
+    Returns:
+        Per test person taken from a video (its index in ``people``), the frames' pictures in the
+        order of ``times``.
+
+    Raises:
+        NoFaceError: the test people are not the ones of :func:`benchmarks.people.other_people`,
+            or a video has no usable face at one of the times.
+    """
+    import cv2
+
+    from facemesh.types import NoFaceError
+    from gazeaug.faces import face_sources
+    from gazeaug.pipeline import default_landmark_model
+
+    sources = list(other_people(data))
+    if len(sources) != len(people):
+        raise NoFaceError(f"expected the {len(people)} test people, found {len(sources)} in {data}")
+    out: dict[int, list[Path]] = {}
+    det = default_landmark_model()
+    try:
+        for k, src in enumerate(sources):
+            if src.person not in times or src.time_s is None:
+                continue
+            video = Path(src.origin.rsplit("@", 1)[0])
+            found = list(face_sources([video], detector=det, per_video=100))
+            out[k] = []
+            for when in times[src.person]:
+                frames = [f for f in found if f.time_s is not None and abs(f.time_s - when) < 0.02]
+                if not frames:
+                    raise NoFaceError(f"{video}: no usable face at {when:.2f} s")
+                out[k].append(work / f"person{k:02d}_t{when:05.2f}.png")
+                cv2.imwrite(str(out[k][-1]), cv2.cvtColor(frames[0].image, cv2.COLOR_RGB2BGR))
+    finally:
+        if hasattr(det, "close"):
+            det.close()
+    return out
 
 
 def _normalize(folder: Path, out: Path) -> None:
@@ -189,7 +270,10 @@ def run() -> None:
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
     ap.add_argument(
-        "--cells", nargs="+", choices=("own", "eyes", "photo", "others", "mixed"), default=["own", "eyes", "photo"]
+        "--cells",
+        nargs="+",
+        choices=("own", "eyes", "photo", "others", "mixed", "frame", "clip"),
+        default=["own", "eyes", "photo"],
     )
     ap.add_argument("--images", type=int, default=200, help="training images of each person or photo (default 200)")
     ap.add_argument("--seeds", type=int, default=1, help="trainings per cell (seeds DRAW, DRAW + 10, ...)")
@@ -216,13 +300,14 @@ def run() -> None:
         _simulate(people, out / f"test_draw{args.draw}", args.draw, "test", 0)
         _normalize(out / f"test_draw{args.draw}", test)
 
-    def made(cell: str) -> Path:
-        """The cell's normalized set, simulated and normalized unless a run before made it."""
-        name = f"{cell}_draw{args.draw}_{args.images}"
+    def made(cell: str, faces: list[Path] | None = None, images: int = args.images) -> Path:
+        """The cell's normalized set (of ``faces``, default the cell's), simulated and normalized unless made before."""
+        name = f"{cell}_draw{args.draw}_{images}"
         data = out / f"{name}.h5"
         if not data.is_file():
-            faces = [args.data / "faces" / n for n in TRAIN_PHOTOS] if cell == "others" else people
-            _simulate(faces, out / name, args.draw, cell, args.images)
+            if faces is None:
+                faces = [args.data / "faces" / n for n in TRAIN_PHOTOS] if cell == "others" else people
+            _simulate(faces, out / name, args.draw, cell, images)
             _normalize(out / name, data)
         return data
 
@@ -236,6 +321,19 @@ def run() -> None:
                 sets[half] = out / f"{half}_draw{args.draw}_{args.images}.h5"
                 if not sets[half].is_file():
                     _join(others, photo, seen, sets[half])
+        elif cell == "frame":
+            frames = enrolment_frames(args.data, people, out / "people", ENROL_FRAMES_S)
+            sets = {cell: made(cell, [frames[k][0] if k in frames else p for k, p in enumerate(people)])}
+            halves = {cell: sorted(frames)}
+        elif cell == "clip":
+            frames = enrolment_frames(args.data, people, out / "people", CLIP_FRAMES_S)
+            per = len(next(iter(CLIP_FRAMES_S.values())))
+            clips = made("clipframes", [p for k in sorted(frames) for p in frames[k]], args.images // per)
+            photo = made("photo")
+            sets = {cell: out / f"clip_draw{args.draw}_{args.images}.h5"}
+            if not sets[cell].is_file():
+                _join(clips, photo, [k for k in range(len(people)) if k not in frames], sets[cell])
+            halves = {cell: sorted(frames)}
         else:
             halves = {cell: []}
             sets = {cell: made(cell)}
@@ -254,12 +352,12 @@ def run() -> None:
                 for mirror in (False, True):
                     row = {"cell": half, "draw": args.draw, "images": args.images, "seed": seed}
                     row.update(mirror_average=mirror, **_read(model, test, mirror))
-                    if cell == "mixed":
-                        seen = {f"sim{i:02d}" for i in halves[half]}
-                        per = row["per_person_deg"]  # the people with test rows (a face found)
+                    if cell in GROUPS:
+                        apart = {f"sim{i:02d}" for i in halves[half]}
+                        per_person = row["per_person_deg"]  # the people with test rows (a face found)
                         for key, group in (
-                            ("seen_deg", [v for p, v in per.items() if p in seen]),
-                            ("unseen_deg", [v for p, v in per.items() if p not in seen]),
+                            (GROUPS[cell][0], [v for p, v in per_person.items() if p in apart]),
+                            (GROUPS[cell][1], [v for p, v in per_person.items() if p not in apart]),
                         ):
                             row[key] = round(sum(group) / len(group), 2) if group else None
                     row.update(set_s=round(t_set, 1), train_s=round(t_train, 1))
