@@ -39,7 +39,9 @@ images and reads the test's 135 images with and without mirror averaging:
 - ``clip``: the same with four other frames of each video person (:data:`CLIP_FRAMES_S`, the
   ``frame`` cell's among them; ``--images`` / 4 images of each frame, set ``clipframes``),
   joined with the ``photo`` rows of the other six (``other_frames_deg``, ``same_photo_deg``):
-  a short clip of the user instead of one picture.
+  a short clip of the user instead of one picture;
+- ``mixedframe``: the ``mixed`` cell with the ``frame`` cell's rows instead of the ``photo``
+  cell's: the video people seen from another frame among the training photos.
 
 The identity of image ``j`` in ``eyes``, ``photo`` and ``others`` is the simulator's own draw ``k = j``
 (``--identities-per-face`` equal to the images); ``eyes`` keeps the face fields of the
@@ -53,8 +55,8 @@ times. Everything lands in ``OUT/``; the sets
 and the trained models are kept and reused by a later run with the same ``--draw``,
 ``--images`` and ``--epochs`` (the file names carry them; delete a file to make it again).
 Measured in docs/model.md ("a known face with unknown eyes"; ``others``: "the photo known, or
-the design without it"; ``mixed``: "a photo among other photos"; ``frame`` and ``clip``: "another
-picture of the person").
+the design without it"; ``mixed``: "a photo among other photos"; ``frame``, ``clip`` and ``mixedframe``:
+"another picture of the person").
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ TEST_IMAGES = 15
 #: The cells whose people are printed in two groups: (the named group's key, the rest's key).
 GROUPS = {
     "mixed": ("seen_deg", "unseen_deg"),
+    "mixedframe": ("seen_deg", "unseen_deg"),
     "frame": ("other_frame_deg", "same_photo_deg"),
     "clip": ("other_frames_deg", "same_photo_deg"),
 }
@@ -272,7 +275,7 @@ def run() -> None:
     ap.add_argument(
         "--cells",
         nargs="+",
-        choices=("own", "eyes", "photo", "others", "mixed", "frame", "clip"),
+        choices=("own", "eyes", "photo", "others", "mixed", "frame", "clip", "mixedframe"),
         default=["own", "eyes", "photo"],
     )
     ap.add_argument("--images", type=int, default=200, help="training images of each person or photo (default 200)")
@@ -313,9 +316,14 @@ def run() -> None:
 
     for cell in args.cells:
         t0 = time.perf_counter()
-        if cell == "mixed":
-            others, photo = made("others"), made("photo")
-            halves = {f"mixed{h}": list(range(int(h == "odd"), len(people), 2)) for h in args.halves}
+        if cell in ("mixed", "mixedframe"):
+            others = made("others")
+            if cell == "mixed":
+                photo = made("photo")
+            else:  # the frame cell's set: the video people from another frame
+                frames = enrolment_frames(args.data, people, out / "people", ENROL_FRAMES_S)
+                photo = made("frame", [frames[k][0] if k in frames else p for k, p in enumerate(people)])
+            halves = {f"{cell}{h}": list(range(int(h == "odd"), len(people), 2)) for h in args.halves}
             sets = {}
             for half, seen in halves.items():
                 sets[half] = out / f"{half}_draw{args.draw}_{args.images}.h5"
