@@ -314,15 +314,16 @@ def run() -> None:
             _normalize(out / name, data)
         return data
 
+    def frame_set() -> tuple[Path, list[int]]:
+        """The frame cell's set and the test people it takes from another frame of their video."""
+        frames = enrolment_frames(args.data, people, out / "people", ENROL_FRAMES_S)
+        return made("frame", [frames[k][0] if k in frames else p for k, p in enumerate(people)]), sorted(frames)
+
     for cell in args.cells:
         t0 = time.perf_counter()
         if cell in ("mixed", "mixedframe"):
             others = made("others")
-            if cell == "mixed":
-                photo = made("photo")
-            else:  # the frame cell's set: the video people from another frame
-                frames = enrolment_frames(args.data, people, out / "people", ENROL_FRAMES_S)
-                photo = made("frame", [frames[k][0] if k in frames else p for k, p in enumerate(people)])
+            photo = made("photo") if cell == "mixed" else frame_set()[0]
             halves = {f"{cell}{h}": list(range(int(h == "odd"), len(people), 2)) for h in args.halves}
             sets = {}
             for half, seen in halves.items():
@@ -330,9 +331,8 @@ def run() -> None:
                 if not sets[half].is_file():
                     _join(others, photo, seen, sets[half])
         elif cell == "frame":
-            frames = enrolment_frames(args.data, people, out / "people", ENROL_FRAMES_S)
-            sets = {cell: made(cell, [frames[k][0] if k in frames else p for k, p in enumerate(people)])}
-            halves = {cell: sorted(frames)}
+            data, replaced = frame_set()
+            sets, halves = {cell: data}, {cell: replaced}
         elif cell == "clip":
             frames = enrolment_frames(args.data, people, out / "people", CLIP_FRAMES_S)
             per = len(next(iter(CLIP_FRAMES_S.values())))
