@@ -1,6 +1,7 @@
 """How far test-time normalization's framing moves an eye in its patch, on simulated people.
 
-``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal 650] [--reference contour|eyeball] [--model M.pt]``
+``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal 650] [--reference contour|eyeball]
+[--reading] [--model M.pt]``
 
 ``SIMULATED_DIR`` is a ``gazeaug simulate`` output (``simulation.jsonl`` holds
 each image's true eyeball centres, mm, camera frame, its head rotation and
@@ -23,6 +24,15 @@ it lies 10.5 mm behind the contour). Normalization aims at the eye corners of
 a generic face, not at this subject's contour, so each subject's median is
 removed; what is left is the image-to-image framing error (detection, PnP).
 
+With ``--reading``, what a reader of the eyes' geometry alone could reach on these people:
+the pupil (the eyeball's centre plus its radius along the optical axis) relative to the eye
+contour's centre, both eyes, px, and the head pose, mapped to the gaze by a linear least-squares
+fit on every other subject and read on the one left out (leave one subject out). Two readings: the
+pupil from the true contour centre (a reader that finds both points exactly; what is left is each
+subject's kappa and eyeball radius, and the linear map), and the pupil from the patch centre (a
+reader that finds the pupil exactly but takes the framing of normalization, from the landmarks and
+PnP, as the contour's place). Both are true points from ``simulation.jsonl``, not detections.
+
 With ``--model``, the model is also evaluated on the patches re-framed by
 these offsets (a sub-pixel translation, edges replicated): as normalized,
 with each image's deviation from its subject's median removed, and with
@@ -32,7 +42,8 @@ what better framing at test time could still buy that model.
 Prints one JSON line: percentiles of the distance (px) and the standard
 deviation per axis, both eyes pooled, each subject's median offset (the part
 the subject's median removes), and with ``--model`` the mean error (deg) and
-Pearson's r of pitch and yaw for each framing.
+Pearson's r of pitch and yaw for each framing; with ``--reading``, the two readings' mean
+error (deg), Pearson's r and the best constant guess (deg).
 """
 
 from __future__ import annotations
@@ -56,6 +67,71 @@ def _reframed(patches: np.ndarray, shift_px: np.ndarray) -> np.ndarray:
     for i, (p, (dx, dy)) in enumerate(zip(patches, shift_px, strict=True)):
         m = np.float32([[1, 0, -dx], [0, 1, -dy]])
         out[i] = cv2.warpAffine(p, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _eye_points_px(records: list, d: dict, settings: dict, focal: float) -> dict[str, np.ndarray]:
+    """Each row's true eye points in its patches: ``{"eyeball", "contour", "pupil"}`` -> (N, 2, 2) px.
+
+    Axis 1 is the eye (left, right), axis 2 (x right, y down) from the patch's principal point,
+    at the normalized focal length ``focal``. The eyeball centre is the record's; the contour's
+    centre lies :func:`gazeaug.simulate.eyeball_depth_mm` in front of it along the head's -z; the
+    pupil is the eyeball centre plus the subject's eyeball radius along the optical axis (the iris
+    is painted on the sphere, its centre at the pole).
+    """
+    from gazeaug.simulate import SimSettings, eyeball_depth_mm
+
+    base_depth = float(settings.get("eyeball_depth_mm", SimSettings.eyeball_depth_mm))
+    base_radius = float(settings.get("eyeball_radius_mm", SimSettings.eyeball_radius_mm))
+    out = {name: np.zeros((len(d["source_index"]), 2, 2)) for name in ("eyeball", "contour", "pupil")}
+    for i, k in enumerate(d["source_index"]):
+        rec = records[int(k)]
+        radius = float((rec.get("subject_draw") or {}).get("eyeball_radius_mm", base_radius))
+        into_head = np.asarray(rec["head_rotation"], dtype=np.float64) @ [0.0, 0.0, 1.0]  # head +z in camera
+        for e, side in enumerate(("left", "right")):
+            centre = np.asarray(rec["eyeball_centres_mm"][side], dtype=np.float64)
+            axis = np.asarray(rec["optical_axes"][side], dtype=np.float64)
+            found = {
+                "eyeball": centre,
+                "contour": centre - eyeball_depth_mm(base_depth, radius) * into_head,
+                "pupil": centre + radius * axis / np.linalg.norm(axis),
+            }
+            for name, point in found.items():
+                v = d[f"R_norm_{side}"][i] @ point
+                out[name][i, e] = focal * v[:2] / v[2]
+    return out
+
+
+def _leave_one_subject_out(features: np.ndarray, gaze: np.ndarray, subjects: np.ndarray) -> np.ndarray:
+    """(N, 2) gaze from (N, F) features: per subject, a linear least-squares fit (with a constant) on the others."""
+    x = np.c_[features, np.ones(len(features))]
+    pred = np.zeros_like(gaze)
+    for s in np.unique(subjects):
+        held = subjects == s
+        w, *_ = np.linalg.lstsq(x[~held], gaze[~held], rcond=None)
+        pred[held] = x[held] @ w
+    return pred
+
+
+def _geometric_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
+    """``--reading``: the pupil from the true contour centre and from the patch centre (module docstring)."""
+    from gazeaug.metrics import constant_guess_error_deg, mean_error_deg, pearson
+
+    gaze = d["gaze"].astype(np.float64)
+    n = len(gaze)
+    out: dict = {"constant_deg": round(constant_guess_error_deg(gaze), 2)}
+    for name, pupil in (
+        ("pupil_from_contour", points["pupil"] - points["contour"]),
+        ("pupil_from_patch_centre", points["pupil"]),
+    ):
+        features = np.c_[pupil.reshape(n, 4), d["head_pose"].astype(np.float64)]
+        pred = _leave_one_subject_out(features, gaze, subjects)
+        r = pearson(pred, gaze)
+        out[name] = {
+            "error_deg": round(mean_error_deg(pred, gaze), 2),
+            "r_pitch": round(float(r[0]), 3),
+            "r_yaw": round(float(r[1]), 3),
+        }
     return out
 
 
@@ -88,7 +164,6 @@ def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviat
 def main() -> int:
     from gazeaug.errors import GazeAugError
     from gazeaug.io_h5 import H5TrainingSet
-    from gazeaug.simulate import SimSettings, eyeball_depth_mm
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("simulated", type=Path, help="a gazeaug simulate output folder")
@@ -100,12 +175,22 @@ def main() -> int:
         default="contour",
         help="the eye's point to follow: the eye contour's centre (default) or the eyeball centre",
     )
+    ap.add_argument(
+        "--reading",
+        action="store_true",
+        help="also fit a linear reading of the gaze from the true pupil and contour centres (leave one subject out)",
+    )
     ap.add_argument("--model", type=Path, default=None, help="a model (.pt) to evaluate under each framing")
     args = ap.parse_args()
     if not (args.simulated / "simulation.jsonl").is_file():
         print(f"{args.simulated}: no simulation.jsonl (expected a gazeaug simulate output folder)", file=sys.stderr)
         return 2
-    records = [json.loads(line) for line in (args.simulated / "simulation.jsonl").read_text().splitlines() if line]
+    try:
+        lines = (args.simulated / "simulation.jsonl").read_text().splitlines()
+        records = [json.loads(line) for line in lines if line]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        print(f"{args.simulated / 'simulation.jsonl'}: not a simulation's records ({exc})", file=sys.stderr)
+        return 2
     settings: dict = {}
     if (args.simulated / "simulation.json").is_file():
         try:
@@ -118,7 +203,9 @@ def main() -> int:
         return 2
     keys = ["R_norm_left", "R_norm_right", "source_index"]
     if args.model is not None:
-        keys += ["left_eye", "right_eye", "head_pose", "gaze"]
+        keys += ["left_eye", "right_eye"]
+    if args.model is not None or args.reading:
+        keys += ["head_pose", "gaze"]
     try:
         ts = H5TrainingSet(args.normalized)
         d = ts.read(keys)
@@ -129,22 +216,12 @@ def main() -> int:
         print(f"{args.normalized}: rows of other images than {args.simulated}'s {len(records)}", file=sys.stderr)
         return 2
     subjects = ts.subjects[ts.rows]
-    base_depth = float(settings.get("eyeball_depth_mm", SimSettings.eyeball_depth_mm))
-    base_radius = float(settings.get("eyeball_radius_mm", SimSettings.eyeball_radius_mm))
-    offsets = []  # (N, 2 eyes, 2) px
-    for i, k in enumerate(d["source_index"]):
-        rec = records[int(k)]
-        row = []
-        for side in ("left", "right"):
-            point = np.asarray(rec["eyeball_centres_mm"][side], dtype=np.float64)
-            if args.reference == "contour":
-                radius = float((rec.get("subject_draw") or {}).get("eyeball_radius_mm", base_radius))
-                into_head = np.asarray(rec["head_rotation"], dtype=np.float64) @ [0.0, 0.0, 1.0]  # head +z in camera
-                point = point - eyeball_depth_mm(base_depth, radius) * into_head
-            v = d[f"R_norm_{side}"][i] @ point
-            row.append(args.focal * v[:2] / v[2])
-        offsets.append(row)
-    off = np.asarray(offsets)
+    try:
+        points = _eye_points_px(records, d, settings, args.focal)
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
+        print(f"{args.simulated / 'simulation.jsonl'}: a record without its eyes ({exc!r:.80})", file=sys.stderr)
+        return 2
+    off = points[args.reference]
     medians = {s: np.median(off[subjects == s], axis=0) for s in np.unique(subjects)}
     dev = off - np.stack([medians[s] for s in subjects])
     dist = np.hypot(dev[..., 0], dev[..., 1]).ravel()
@@ -159,6 +236,8 @@ def main() -> int:
         "std_px_xy": [round(float(v), 2) for v in dev.reshape(-1, 2).std(axis=0)],
         "subject_median_px_xy": {s: [[round(float(v), 1) for v in eye] for eye in m] for s, m in medians.items()},
     }
+    if args.reading:
+        result["reading"] = _geometric_reading(points, d, subjects)
     if args.model is not None:
         try:
             result["model"] = _model_under_framings(args.model, d, off, dev)

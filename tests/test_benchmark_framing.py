@@ -1,0 +1,74 @@
+"""benchmarks/framing.py: a simulated eye's true points in its patch, and the geometric reading from them."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _framing_module():
+    spec = importlib.util.spec_from_file_location("bench_framing", ROOT / "benchmarks" / "framing.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _record(centre_left, axis_left, radius=12.0):
+    return {
+        "head_rotation": np.eye(3).tolist(),
+        "eyeball_centres_mm": {"left": list(centre_left), "right": [-30.0, 0.0, 600.0]},
+        "optical_axes": {"left": list(axis_left), "right": [0.0, 0.0, -1.0]},
+        "subject_draw": {"eyeball_radius_mm": radius},
+    }
+
+
+def test_eye_points_project_by_hand():
+    framing = _framing_module()
+    t = math.radians(10.0)
+    records = [
+        _record([10.0, 0.0, 600.0], [0.0, 0.0, -2.0]),  # the axis need not be a unit vector
+        _record([0.0, 0.0, 600.0], [math.sin(t), 0.0, -math.cos(t)]),
+        _record([10.0, 0.0, 600.0], [0.0, 0.0, -1.0], radius=13.0),
+    ]
+    d = {"source_index": np.array([0, 1, 2]), "R_norm_left": np.tile(np.eye(3), (3, 1, 1))}
+    d["R_norm_right"] = d["R_norm_left"]
+    pts = framing._eye_points_px(records, d, {}, 650.0)
+    # eyeball centre 10 mm off the axis at 600 mm: 650 * 10 / 600 px
+    assert np.allclose(pts["eyeball"][0, 0], [650.0 * 10 / 600, 0.0])
+    # the pupil 12 mm toward the camera: 650 * 10 / 588
+    assert np.allclose(pts["pupil"][0, 0], [650.0 * 10 / 588, 0.0])
+    # the contour 10.5 mm in front of a 12 mm eyeball (head +z is the camera's +z here): 650 * 10 / 589.5
+    assert np.allclose(pts["contour"][0, 0], [650.0 * 10 / 589.5, 0.0])
+    # the axis turned 10 deg to +x: the pole at (12 sin 10, 0, 600 - 12 cos 10)
+    assert np.allclose(pts["pupil"][1, 0], [650.0 * 12 * math.sin(t) / (600 - 12 * math.cos(t)), 0.0])
+    # a 13 mm eyeball sits 1 mm deeper: its contour 11.5 mm in front of its centre, its pupil 13 mm
+    assert np.allclose(pts["contour"][2, 0], [650.0 * 10 / 588.5, 0.0])
+    assert np.allclose(pts["pupil"][2, 0], [650.0 * 10 / 587, 0.0])
+    assert np.allclose(pts["pupil"][2, 1], [650.0 * -30 / 587, 0.0])  # the subject's radius for both eyes
+    # a record without a drawn subject takes the settings' radius
+    bare = _record([10.0, 0.0, 600.0], [0.0, 0.0, -1.0])
+    del bare["subject_draw"]
+    one = {k: v[:1] for k, v in d.items()}
+    assert np.allclose(
+        framing._eye_points_px([bare], one, {"eyeball_radius_mm": 11.0}, 650.0)["pupil"][0, 0], [650.0 * 10 / 589, 0.0]
+    )
+
+
+def test_leave_one_subject_out_reads_an_exact_linear_law_exactly():
+    framing = _framing_module()
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(30, 3))
+    gaze = x @ np.array([[0.5, -1.0], [2.0, 0.25], [0.0, 1.5]]) + [0.1, -0.2]
+    subjects = np.repeat(["a", "b", "c"], 10)
+    assert np.allclose(framing._leave_one_subject_out(x, gaze, subjects), gaze)
+    # a subject's own offset is not learnt from the others: the held-out subject keeps it as its error
+    shifted = gaze.copy()
+    shifted[subjects == "a"] += [0.05, 0.0]
+    pred = framing._leave_one_subject_out(x, shifted, subjects)
+    assert np.allclose(pred[subjects == "a"], gaze[subjects == "a"])
