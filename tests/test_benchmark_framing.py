@@ -72,3 +72,38 @@ def test_leave_one_subject_out_reads_an_exact_linear_law_exactly():
     shifted[subjects == "a"] += [0.05, 0.0]
     pred = framing._leave_one_subject_out(x, shifted, subjects)
     assert np.allclose(pred[subjects == "a"], gaze[subjects == "a"])
+
+
+def test_eye_points_follow_the_head_and_the_normalizing_rotation():
+    framing = _framing_module()
+    # the head turned 90 deg about the camera's y: its +z (into the head) is the camera's +x
+    head = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    rec = _record([0.0, 0.0, 600.0], [0.0, 0.0, -1.0])
+    rec["head_rotation"] = head.tolist()
+    # the normalized camera's rows (its x, y, z axes in the camera frame): x along the camera's -y,
+    # y along the camera's +x, z along z (a 90 deg roll)
+    r_norm = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    d = {"source_index": np.array([0]), "R_norm_left": r_norm[None], "R_norm_right": r_norm[None]}
+    pts = framing._eye_points_px([rec], d, {}, 650.0)
+    # the contour 10.5 mm in front of the eyeball along the head's -z: camera (-10.5, 0, 600);
+    # in the normalized camera (0, -10.5, 600): 10.5 mm up in the patch
+    assert np.allclose(pts["contour"][0, 0], [0.0, 650.0 * -10.5 / 600])
+    # the right eyeball at camera (-30, 0, 600): normalized (0, -30, 600)
+    assert np.allclose(pts["eyeball"][0, 1], [0.0, 650.0 * -30 / 600])
+
+
+def test_geometric_reading_fits_the_pupils_offset_from_the_contour():
+    framing = _framing_module()
+    rng = np.random.default_rng(1)
+    n = 30
+    contour = rng.normal(scale=3.0, size=(n, 2, 2))
+    offset = rng.normal(scale=2.0, size=(n, 2, 2))
+    head = rng.normal(scale=0.1, size=(n, 2))
+    # the gaze a linear law of the offset (both eyes) and the head pose; the contour itself says nothing
+    gaze = offset.reshape(n, 4) @ rng.normal(scale=0.05, size=(4, 2)) + head @ np.diag([0.5, -0.3])
+    points = {"pupil": contour + offset, "contour": contour}
+    d = {"gaze": gaze.astype(np.float32), "head_pose": head.astype(np.float32)}
+    got = framing._geometric_reading(points, d, np.repeat(["a", "b", "c"], 10))
+    assert got["pupil_from_contour"]["error_deg"] < 0.01  # float32 labels: exact to rounding
+    assert got["pupil_from_patch_centre"]["error_deg"] > 0.5  # the contour's place unknown: not exact
+    assert got["constant_deg"] > 1.0
