@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import signal
 from pathlib import Path
@@ -157,3 +158,13 @@ def default_sigint() -> None:
     ignored SIGINT ignored: without this the child would finish its run instead of stopping.
     """
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def benchmark_module(name: str):
+    """``benchmarks/NAME.py`` imported as a module (the scripts are not a package), its top level run once."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

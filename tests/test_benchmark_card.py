@@ -3,25 +3,17 @@
 from __future__ import annotations
 
 import datetime
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
+from helpers import benchmark_module
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _card_module():
-    spec = importlib.util.spec_from_file_location("bench_card", ROOT / "benchmarks" / "card.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_figures_join_the_card_beside_what_it_held(tmp_path):
-    card = _card_module()
+    card = benchmark_module("card")
     model = tmp_path / "m.pt"
     (tmp_path / "m.json").write_text(json.dumps({"model": "m.pt", "epochs": 3, "measured": {"old": {"x": 1}}}))
     path = card.record(model, "demo_model", {"mean_deg": 10.5}, "python benchmarks/demo_model.py --card")
@@ -42,7 +34,7 @@ def test_figures_join_the_card_beside_what_it_held(tmp_path):
 
 
 def test_a_model_without_a_card_gets_one_and_a_broken_card_is_refused_untouched(tmp_path):
-    card = _card_module()
+    card = benchmark_module("card")
     path = card.record(tmp_path / "new.pt", "track_accuracy", {"people": 4}, "c")
     assert json.loads(path.read_text())["measured"]["track_accuracy"]["people"] == 4
     broken = tmp_path / "b.json"
@@ -56,7 +48,7 @@ def test_a_model_without_a_card_gets_one_and_a_broken_card_is_refused_untouched(
 
 
 def test_the_scripts_say_a_broken_card_in_one_line_and_exit_2(tmp_path, capsys):
-    card = _card_module()
+    card = benchmark_module("card")
     (tmp_path / "b.json").write_text("{not json")
     with pytest.raises(SystemExit) as exc:
         card.record_or_exit(tmp_path / "b.pt", "demo_model", {}, "c")
@@ -68,6 +60,6 @@ def test_the_scripts_say_a_broken_card_in_one_line_and_exit_2(tmp_path, capsys):
 
 
 def test_a_model_inside_the_repository_is_named_relative_to_it(tmp_path):
-    card = _card_module()
+    card = benchmark_module("card")
     assert card.shown(ROOT / "gazeaug" / "models" / "demo_wheelchair.pt") == "gazeaug/models/demo_wheelchair.pt"
     assert card.shown(tmp_path / "m.pt") == str(tmp_path / "m.pt")

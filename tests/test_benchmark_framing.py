@@ -2,21 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _framing_module():
-    spec = importlib.util.spec_from_file_location("bench_framing", ROOT / "benchmarks" / "framing.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from helpers import benchmark_module
 
 
 def _record(centre_left, axis_left, radius=12.0):
@@ -29,7 +18,7 @@ def _record(centre_left, axis_left, radius=12.0):
 
 
 def test_eye_points_project_by_hand():
-    framing = _framing_module()
+    framing = benchmark_module("framing")
     t = math.radians(10.0)
     records = [
         _record([10.0, 0.0, 600.0], [0.0, 0.0, -2.0]),  # the axis need not be a unit vector
@@ -61,7 +50,7 @@ def test_eye_points_project_by_hand():
 
 
 def test_leave_one_subject_out_reads_an_exact_linear_law_exactly():
-    framing = _framing_module()
+    framing = benchmark_module("framing")
     rng = np.random.default_rng(0)
     x = rng.normal(size=(30, 3))
     gaze = x @ np.array([[0.5, -1.0], [2.0, 0.25], [0.0, 1.5]]) + [0.1, -0.2]
@@ -75,7 +64,7 @@ def test_leave_one_subject_out_reads_an_exact_linear_law_exactly():
 
 
 def test_eye_points_follow_the_head_and_the_normalizing_rotation():
-    framing = _framing_module()
+    framing = benchmark_module("framing")
     # the head turned 90 deg about the camera's y: its +z (into the head) is the camera's +x
     head = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     rec = _record([0.0, 0.0, 600.0], [0.0, 0.0, -1.0])
@@ -93,7 +82,7 @@ def test_eye_points_follow_the_head_and_the_normalizing_rotation():
 
 
 def test_geometric_reading_fits_the_pupils_offset_from_the_contour():
-    framing = _framing_module()
+    framing = benchmark_module("framing")
     rng = np.random.default_rng(1)
     n = 30
     contour = rng.normal(scale=3.0, size=(n, 2, 2))
