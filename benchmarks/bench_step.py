@@ -114,7 +114,7 @@ def measure(held: _Held, batch: int, steps: int, compile_model: bool) -> dict[st
     out["inputs"] = round(1 / (1 / out["inputs"] - 1 / out["gather"]), 1)  # the gathering taken out
 
     def forward_backward(model: Any, inputs: tuple[Any, ...]) -> Any:
-        a, b, c, y, _ = inputs
+        a, b, c, y = inputs.left, inputs.right, inputs.head_pose, inputs.gaze
         with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
             pred = model(a, b, c)
         loss = (pred.float() - y).abs().mean()
@@ -138,7 +138,8 @@ def measure(held: _Held, batch: int, steps: int, compile_model: bool) -> dict[st
         call = call if call is not None else model  # (not `or`: a module's truth is its length)
 
         def step(k: int) -> Any:
-            a, b, c, y, _ = train_inputs(held.batch(index_of(k)), device, aug, "rgb", gen)
+            t = train_inputs(held.batch(index_of(k)), device, aug, "rgb", gen)
+            a, b, c, y = t.left, t.right, t.head_pose, t.gaze
             with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda):
                 pred = call(a, b, c)
             loss = (pred.float() - y).abs().mean()

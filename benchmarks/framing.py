@@ -1,6 +1,6 @@
 """How far test-time normalization's framing moves an eye in its patch, on simulated people.
 
-``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal 650] [--reference contour|eyeball]
+``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal F] [--reference contour|eyeball]
 [--reading] [--model M.pt]``
 
 ``SIMULATED_DIR`` is a ``gazeaug simulate`` output (``simulation.jsonl`` holds
@@ -12,10 +12,17 @@ eye's normalized camera from the landmarks MediaPipe detected and the head
 pose PnP found. Redirected training eyes are framed from the rendered pose
 itself, exactly; a test image's eye lands wherever detection puts it.
 
-For every image and eye, a true point of the eye is projected through the
-row's normalizing rotation (``R_norm_left``/``R_norm_right``) onto the patch
-plane at the normalized focal length ``--focal``: where it sits relative to
-the patch centre, px (x right, y down). The point (``--reference``) is the
+For every image and eye, a true point of the eye is projected into the patch
+as the patch's normalized camera sees it (``C_n S R p``,
+:meth:`gazeaug.camera.NormalizedCamera.project`): the row's normalizing
+rotation (``R_norm_left``/``R_norm_right``), Zhang's scale ``S`` (``d_n /
+||e||``, ``e`` the camera's reference point, taken as the true eye contour's
+centre: the detected one lies within a few mm of it, under 1 % of ``||e||``)
+and the normalized focal length (``--focal``, default the set's): where it
+sits relative to the patch centre, px (x right, y down). Before 2026-11-30's
+twenty-third session the scale was left out, which made every offset
+``d_n / ||e||`` times too large (1.28 x on average in the wheelchair rig,
+faces 0.70-0.86 x ``d_n`` from the camera). The point (``--reference``) is the
 **eye contour's centre** (default: what normalization aims at, the eyeball
 centre moved forward by :func:`gazeaug.simulate.eyeball_depth_mm` along the
 head's -z) or the **eyeball centre** (the first version of this script; it
@@ -70,11 +77,14 @@ def _reframed(patches: np.ndarray, shift_px: np.ndarray) -> np.ndarray:
     return out
 
 
-def _eye_points_px(records: list, d: dict, settings: dict, focal: float) -> dict[str, np.ndarray]:
+def _eye_points_px(
+    records: list, d: dict, settings: dict, focal: float, distance_mm: float = 600.0
+) -> dict[str, np.ndarray]:
     """Each row's true eye points in its patches: ``{"eyeball", "contour", "pupil"}`` -> (N, 2, 2) px.
 
     Axis 1 is the eye (left, right), axis 2 (x right, y down) from the patch's principal point,
-    at the normalized focal length ``focal``. The eyeball centre is the record's; the contour's
+    as the normalized camera (focal length ``focal``, distance ``distance_mm``) sees them: ``C_n S R p``
+    with ``S`` scaling depth by ``distance_mm / ||contour centre||``. The eyeball centre is the record's; the contour's
     centre lies :func:`gazeaug.simulate.eyeball_depth_mm` in front of it along the head's -z; the
     pupil is the eyeball centre plus the subject's eyeball radius along the optical axis (the iris
     is painted on the sphere, its centre at the pole).
@@ -96,9 +106,10 @@ def _eye_points_px(records: list, d: dict, settings: dict, focal: float) -> dict
                 "contour": centre - eyeball_depth_mm(base_depth, radius) * into_head,
                 "pupil": centre + radius * axis / np.linalg.norm(axis),
             }
+            scale = distance_mm / float(np.linalg.norm(found["contour"]))  # S: d_n / ||e||
             for name, point in found.items():
                 v = d[f"R_norm_{side}"][i] @ point
-                out[name][i, e] = focal * v[:2] / v[2]
+                out[name][i, e] = focal * v[:2] / (v[2] * scale)
     return out
 
 
@@ -168,7 +179,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("simulated", type=Path, help="a gazeaug simulate output folder")
     ap.add_argument("normalized", type=Path, help="its images through gazeaug normalize-dataset (.h5)")
-    ap.add_argument("--focal", type=float, default=650.0, help="the normalized focal length, px (default 650)")
+    ap.add_argument(
+        "--focal", type=float, default=None, help="the normalized focal length, px (default: the set's, else 650)"
+    )
     ap.add_argument(
         "--reference",
         choices=("contour", "eyeball"),
@@ -217,7 +230,9 @@ def main() -> int:
         return 2
     subjects = ts.subjects[ts.rows]
     try:
-        points = _eye_points_px(records, d, settings, args.focal)
+        norm = ts.settings.get("normalization", {}) if isinstance(ts.settings, dict) else {}
+        focal = float(args.focal if args.focal is not None else norm.get("focal_px", 650.0))
+        points = _eye_points_px(records, d, settings, focal, float(norm.get("distance_mm", 600.0)))
     except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
         print(f"{args.simulated / 'simulation.jsonl'}: a record without its eyes ({exc!r:.80})", file=sys.stderr)
         return 2
@@ -229,7 +244,7 @@ def main() -> int:
     result = {
         "images": len(off),
         "reference": args.reference,
-        "focal_px": args.focal,
+        "focal_px": focal,
         "distance_px_percentiles": {
             str(p): round(float(v), 2) for p, v in zip(pct, np.percentile(dist, pct), strict=True)
         },

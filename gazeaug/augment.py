@@ -411,6 +411,10 @@ def render_redirected(
 ) -> list[NormalizedSample]:
     """Both eyes at each head placement, the eyeballs turned to look at each target, with labels.
 
+    Each eye patch records where its iris centre and eye opening's centre lie in it
+    (:attr:`gazeaug.normalize.EyePatch.keypoints_px`, :meth:`SimSubject.eye_keypoints_mm`
+    projected by the patch's camera).
+
     The gaze is redirected: the label is the line from the eyes to ``targets_mm``
     (the eyeballs' visual axes fixate it), not the source photo's gaze. Patches
     come from the subject's one ray-cast scene per placement (face textured by the
@@ -441,6 +445,16 @@ def render_redirected(
     # the same softness at the face camera's scale (its own f_n / d_n against the photo's)
     face_blur = eye_softness_px(asset, replace(s, focal_px=s.face_focal_px, distance_mm=s.face_distance_mm))
     images, coverage, faces, face_cover = [], [], [], []
+    # each eye's points, where the eyeball drawn below puts them, in its own patch
+    keypoints = np.stack(
+        [
+            [
+                cam.project(points)
+                for cam, points in zip(views.cameras[i][:2], subject.eye_keypoints_mm(rot[i], trans[i], targets[i]))
+            ]
+            for i in range(len(placements))
+        ]
+    )
     for i in range(len(placements)):
         groups: list[tuple[Sequence[NormalizedCamera], float]] = [(views.cameras[i][:2], blur)]
         if s.face_patch_size_wh is not None:
@@ -471,6 +485,7 @@ def render_redirected(
         metas=metas,
         face_patches=np.stack(faces) if faces else None,
         face_coverage=np.asarray(face_cover) if faces else None,
+        eye_keypoints_px=keypoints,
     )
 
 

@@ -142,6 +142,35 @@ class NormalizedCamera:
         """
         return pixel_grid(self.size_wh) @ self.pixel_to_ray.T
 
+    def project(self, points_mm: ArrayLike) -> NDArray[np.float64]:
+        """Points of the real camera's frame -> their positions in the normalized image, px.
+
+        Convention: ``(u, v, 1) ~ C_n S R p`` (the warp of :meth:`warp_matrix` applied to the
+        point's real image position; the inverse of :meth:`pixel_to_ray`): pixel centres at whole
+        numbers, x right, y down, the principal point at ``(w / 2, h / 2)``. A point at the
+        reference's depth ``||e||``, ``delta`` mm off the axis, lands ``f_n delta / d_n`` px from the
+        principal point: as seen from ``d_n`` mm, not from ``||e||``.
+
+        Args:
+            points_mm: (..., 3) float, mm, real camera frame, in front of the camera (z > 0).
+
+        Returns:
+            (..., 2) float64, px (u, v).
+
+        Raises:
+            GazeAugError: not (..., 3), not finite, or a point not in front of the camera.
+        """
+        p = np.asarray(points_mm, dtype=np.float64)
+        if p.ndim < 1 or p.shape[-1] != 3 or not np.isfinite(p).all():
+            raise GazeAugError(f"points: expected finite (..., 3) mm, got shape {p.shape}")
+        q = p @ (np.diag([1.0, 1.0, self.scale]) @ self.rotation).T  # S R p
+        if not (q[..., 2] > 0).all():
+            raise GazeAugError("points: expected every point in front of the normalized camera (z > 0)")
+        w, h = self.size_wh
+        return np.stack(
+            [self.focal_px * q[..., 0] / q[..., 2] + w / 2.0, self.focal_px * q[..., 1] / q[..., 2] + h / 2.0], axis=-1
+        )
+
     def normalize_vector(self, vector: ArrayLike) -> NDArray[np.float64]:
         """(3,) direction in the real camera frame -> (3,) unit direction in the normalized frame (``R v``)."""
         v = np.asarray(vector, dtype=np.float64)

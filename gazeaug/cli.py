@@ -385,6 +385,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--lr", type=finite_float, default=None, help=LR_HELP)
     t.add_argument(
+        "--keypoint-loss",
+        type=finite_float,
+        default=0.0,
+        metavar="W",
+        help="also teach the eye encoder where each eye's iris centre and opening centre lie (the set's "
+        "eye_keypoints, written by augment --redirect-eyes), weight W, 0 to 100 (default 0: off); the model "
+        "file is the same network either way (docs/model.md)",
+    )
+    t.add_argument(
         "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
     )
     t.add_argument(
@@ -1035,6 +1044,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         lr=TrainSettings.lr if args.lr is None else args.lr,
         seed=args.seed,
         device=args.device,
+        keypoint_loss_weight=args.keypoint_loss,
         **_train_input_settings(args),
     )
     log = train(

@@ -26,6 +26,11 @@ key                       shape, dtype         meaning
 ``sampled_yaw_pitch``     (N, 2) float32       the drawn (yaw, pitch) in degrees (NaN: not augmented)
 ``face`` (optional)       (N, Hf, Wf, 3) uint8 the normalized face patch, RGB (face-centre camera, the
                                                settings' ``face_patch_size_wh``; only when they ask for one)
+``eye_keypoints``         (N, 2, 2, 2)         (optional) px, each eye (left, right), its iris centre and
+(optional)                float32              eye opening's centre (``EYE_KEYPOINTS``), (u, v) in that
+                                               eye's patch (pixel centres at whole numbers, principal point
+                                               (w / 2, h / 2)); NaN where unknown (a source's own row); only
+                                               in ``augment --redirect-eyes`` sets, whose eyes were drawn
 ``sources/index``         (M,) int64           every input sample that produced rows
 ``sources/labels``        (M, 2, 2) float32    its original (head pose, gaze) (pitch, yaw) rad, face frame
 ========================  ===================  ==================================================
@@ -110,12 +115,17 @@ class Rows:
         return len(self.arrays["left_eye"])
 
 
-def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_index: int) -> Rows:
-    """Schema rows for the samples of one source image (each must have a gaze and face labels)."""
+def rows_from_samples(
+    samples: Sequence[NormalizedSample], subject: str, source_index: int, *, eye_keypoints: bool = False
+) -> Rows:
+    """Schema rows for the samples of one source image (each must have a gaze and face labels).
+
+    ``eye_keypoints``: write the ``eye_keypoints`` column (NaN for a sample whose eyes carry none).
+    """
     if not samples:
         raise GazeAugError("no samples to write")
     with_face = samples[0].face is not None and samples[0].face.image is not None
-    dtypes = _dtypes(with_face)
+    dtypes = _dtypes(with_face, eye_keypoints)
     out: dict[str, list[Any]] = {k: [] for k in dtypes}
     for s in samples:
         if s.face is None or s.face.gaze is None or s.left.gaze is None or s.right.gaze is None:
@@ -124,6 +134,11 @@ def rows_from_samples(samples: Sequence[NormalizedSample], subject: str, source_
             raise GazeAugError("training rows: some samples have a face patch and some do not")
         if s.face.image is not None:
             out["face"].append(s.face.image)
+        if eye_keypoints:
+            known = s.left.keypoints_px is not None and s.right.keypoints_px is not None
+            out["eye_keypoints"].append(
+                [s.left.keypoints_px, s.right.keypoints_px] if known else np.full(_KEYPOINTS_TAIL, np.nan)
+            )
         out["left_eye"].append(s.left.image)
         out["right_eye"].append(s.right.image)
         out["head_pose"].append(s.face.head_pose)
@@ -174,9 +189,18 @@ def _chunk_rows(key: str, tail: tuple[int, ...]) -> int:
     return max(1, min(_CHUNK, _FACE_CHUNK_BYTES // int(np.prod(tail))))
 
 
-def _dtypes(with_face: bool) -> dict[str, Any]:
-    """The per-row keys and dtypes of a file: the schema's, and ``face`` when it has face patches."""
-    return {**_DTYPES, "face": np.uint8} if with_face else _DTYPES
+#: The shape of a row's ``eye_keypoints``: (eye, point, (u, v)).
+_KEYPOINTS_TAIL = (2, 2, 2)
+
+
+def _dtypes(with_face: bool, with_keypoints: bool = False) -> dict[str, Any]:
+    """The per-row keys and dtypes of a file: the schema's, ``face`` with face patches, ``eye_keypoints`` with them."""
+    out = dict(_DTYPES)
+    if with_face:
+        out["face"] = np.uint8
+    if with_keypoints:
+        out["eye_keypoints"] = np.float32
+    return out
 
 
 def _differences(what: str, then_json: Any, now_json: str) -> list[str]:
@@ -265,13 +289,14 @@ class H5Writer:
         patch_size_wh: tuple[int, int],
         *,
         face_patch_size_wh: tuple[int, int] | None = None,
+        eye_keypoints: bool = False,
         resume: bool = False,
         overwrite: bool = False,
         compress: bool = True,
     ):
         h5py = _import_h5py()
         self.path = Path(path)
-        self._dtypes = _dtypes(face_patch_size_wh is not None)
+        self._dtypes = _dtypes(face_patch_size_wh is not None, eye_keypoints)
         check_output_state(self.path, resume=resume, overwrite=overwrite)
         self.part = part_path(self.path)
         settings = json.dumps(attrs.get("settings", {}), sort_keys=True)
@@ -298,6 +323,12 @@ class H5Writer:
                 raise GazeAugError(
                     f"{self.part} was written with other settings or data ({'; '.join(changed)})",
                     remedy="same_settings",
+                )
+            lacking = [k for k in self._dtypes if k not in self._f]
+            if lacking:
+                self._f.close()
+                raise GazeAugError(
+                    f"{self.part}: made by an older gazeaug without the column(s) {lacking}; delete it to start over"
                 )
             done = int(self._f.attrs.get("rows_done", 0))
             for k in self._dtypes:
@@ -326,6 +357,7 @@ class H5Writer:
             }
             if face_patch_size_wh is not None:
                 shapes["face"] = (face_patch_size_wh[1], face_patch_size_wh[0], 3)
+            shapes["eye_keypoints"] = _KEYPOINTS_TAIL
             for k, dt in self._dtypes.items():
                 tail = shapes.get(k, (2,))
                 self._f.create_dataset(
@@ -385,10 +417,9 @@ class H5Writer:
         with h5py.File(path, "r") as f:
             if not f.attrs.get("complete", False):
                 raise GazeAugError(f"{path}: the shard is not complete")
-            if ("face" in f) != ("face" in self._dtypes):
-                raise GazeAugError(
-                    f"{path}: the shard {'has' if 'face' in f else 'lacks'} face patches, the output not"
-                )
+            for key, what in (("face", "face patches"), ("eye_keypoints", "eye keypoints")):
+                if (key in f) != (key in self._dtypes):
+                    raise GazeAugError(f"{path}: the shard {'has' if key in f else 'lacks'} {what}, the output not")
             arrays = {k: f[k][()] for k in self._dtypes}
             index, labels = f["sources/index"][()], f["sources/labels"][()]
             skipped = json.loads(f.attrs.get("skipped", "[]"))
@@ -516,6 +547,10 @@ def _check_schema(f: Any, path: Path) -> tuple[int, NDArray[np.float32]]:
             raise GazeAugError(f"{path}: face patches must be ({n}, H, W, 3), got {face_shape}")
     for k in REQUIRED_KEYS:
         _check_rows(f, path, k, n)
+    if "eye_keypoints" in f:
+        ks = f["eye_keypoints"]
+        if ks.shape != (n, *_KEYPOINTS_TAIL) or ks.dtype.kind != "f":
+            raise GazeAugError(f"{path}: /eye_keypoints: expected float ({n}, 2, 2, 2) px, got {ks.dtype} {ks.shape}")
     for key in ("left_eye", "right_eye", "face"):
         if key in f and f[key].dtype != np.uint8:  # what augment writes and the models read
             raise GazeAugError(f"{path}: /{key}: expected uint8 RGB patches, got {f[key].dtype}")
@@ -662,6 +697,7 @@ class H5TrainingSet:
         subjects: (N,) str, the subject of every row of the file.
         patch_size_wh: eye patch (width, height), pixels.
         face_patch_size_wh: face patch (width, height), pixels, when the rows carry one (``face``); else None.
+        has_eye_keypoints: whether the file has the ``eye_keypoints`` column (:meth:`eye_keypoints`).
         attrs: the file attributes (``settings`` and ``skipped`` decoded from JSON).
         settings: the run's parameters (``attrs["settings"]``; {} when absent).
         fingerprint: ``"K rows, sha1 HEX"``: the rows in use and a SHA-1 of their labels (head pose
@@ -680,9 +716,9 @@ class H5TrainingSet:
     KEYS = ("left_eye", "right_eye", "head_pose", "gaze", "subject")
 
     @classmethod
-    def batch_keys(cls, face: bool) -> tuple[str, ...]:
-        """The columns a model's batches need: :attr:`KEYS`, and ``face`` for a model that reads it."""
-        return (*cls.KEYS, "face") if face else cls.KEYS
+    def batch_keys(cls, face: bool, keypoints: bool = False) -> tuple[str, ...]:
+        """The columns a model's batches need: :attr:`KEYS`, ``face`` for a model that reads it, ``eye_keypoints``."""
+        return (*cls.KEYS, *(("face",) if face else ()), *(("eye_keypoints",) if keypoints else ()))
 
     def __init__(
         self,
@@ -700,6 +736,7 @@ class H5TrainingSet:
             n, labels = _check_schema(f, self.path)
             eye_shape = f["left_eye"].shape[1:]
             face_shape = f["face"].shape[1:] if "face" in f else None
+            self.has_eye_keypoints = "eye_keypoints" in f
             subj = np.array([s.decode() if isinstance(s, bytes) else str(s) for s in f["subject"][()]], dtype=str)
             self.attrs = _decode_attrs(f.attrs)
             raw_settings = f.attrs.get("settings")
@@ -767,6 +804,21 @@ class H5TrainingSet:
         """(K, 2) float32 radians (pitch, yaw), face-centre normalized frame: the head pose of the rows in use."""
         return self._labels[self.rows, :2]
 
+    def eye_keypoints(self, *, every_row: bool = False) -> NDArray[np.float32]:
+        """(K, 2, 2, 2) float32 px: the rows' ``eye_keypoints`` (schema), NaN where unknown.
+
+        ``every_row``: the file's N rows, not only the K in use.
+
+        Raises:
+            GazeAugError: the file has none.
+        """
+        if not self.has_eye_keypoints:
+            raise GazeAugError(f"{self.path}: no eye keypoints (made without augment --redirect-eyes)")
+        h5py = _import_h5py()
+        with h5py.File(self.path, "r") as f, _reading(self.path):
+            column = np.asarray(f["eye_keypoints"][()], dtype=np.float32)
+        return column if every_row else column[self.rows]
+
     def read(self, keys: Sequence[str] | None = None) -> dict[str, Any]:
         """Whole columns of the rows in use, and the file attributes.
 
@@ -822,6 +874,8 @@ class H5TrainingSet:
         wanted = tuple(keys) if keys is not None else self.KEYS
         if "face" in wanted and self.face_patch_size_wh is None:
             raise GazeAugError(f"{self.path}: no face patches (made without --face-patch)")
+        if "eye_keypoints" in wanted and not self.has_eye_keypoints:
+            raise GazeAugError(f"{self.path}: no eye keypoints (made without augment --redirect-eyes)")
         carry: dict[str, list[NDArray[Any]]] = {k: [] for k in wanted}
         carried = 0
         in_memory = {  # read once when the file was opened
@@ -829,6 +883,8 @@ class H5TrainingSet:
             "head_pose": self._labels[:, :2],
             "gaze": self._labels[:, 2:],
         }
+        if "eye_keypoints" in wanted:  # 32 bytes a row: read whole, once
+            in_memory["eye_keypoints"] = self.eye_keypoints(every_row=True)
         n_threads = read_threads() if threads is None else max(1, int(threads))
         pool_cm = ThreadPoolExecutor(n_threads, thread_name_prefix="gazeaug-inflate") if n_threads > 1 else _no_pool()
         with h5py.File(self.path, "r") as f, pool_cm as pool:

@@ -119,6 +119,11 @@ class JobSettings:
         if self.renderer not in usable:
             raise GazeAugError(f"renderer: expected one of {usable}, got {self.renderer!r}")
 
+    @property
+    def writes_eye_keypoints(self) -> bool:
+        """Whether the output has the ``eye_keypoints`` column: the drawn eyes' points (``eyes="redirect"``)."""
+        return self.kind == "augment" and self.eyes == "redirect"
+
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form."""
         d: dict[str, Any] = {"kind": self.kind, "normalization": self.normalization.as_dict(), "seed": self.seed}
@@ -309,7 +314,8 @@ def process_sample(sample: GazeSample, image: NDArray[np.uint8] | Exception | No
                 samples = [normalized(), *samples]
     except (PoseError, GazeAugError, InputError) as exc:
         return skip(f"failed: {exc}")
-    return SampleOutcome(idx, rows_from_samples(samples, sample.subject, idx), None, before)
+    rows = rows_from_samples(samples, sample.subject, idx, eye_keypoints=s.writes_eye_keypoints)
+    return SampleOutcome(idx, rows, None, before)
 
 
 #: Samples per task sent to a worker process (each task reads its next image while processing the current one).
@@ -396,13 +402,16 @@ class _ShardTask:
     patch_sizes: _PatchSizes
 
 
-def _shard_matches(path: Path, attrs: dict[str, Any]) -> bool:
-    """A complete shard written with these settings, data and sample range (reused on ``--resume``)."""
+def _shard_matches(path: Path, attrs: dict[str, Any], eye_keypoints: bool = False) -> bool:
+    """A complete shard written with these settings, data and sample range (reused on ``--resume``).
+
+    ``eye_keypoints``: whether this run writes the column (a shard of a gazeaug without it is redone).
+    """
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            if not f.attrs.get("complete", False):
+            if not f.attrs.get("complete", False) or ("eye_keypoints" in f) != eye_keypoints:
                 return False
             return all(
                 json.loads(f.attrs.get(k, "null")) == json.loads(json.dumps(attrs[k]))
@@ -427,14 +436,15 @@ def _ray_work(task: _ShardTask) -> dict[str, Any]:
     node = node_name()
     path = Path(task.path)
     result = {"shard": task.path, "node": node, "samples": task.stop - task.first, "reused": True}
-    if path.exists() and _shard_matches(path, task.attrs):
+    keypoints = _STATE["settings"].writes_eye_keypoints  # the actor's settings (set up before any task)
+    if path.exists() and _shard_matches(path, task.attrs, keypoints):
         return result
     path.parent.mkdir(parents=True, exist_ok=True)
     # A name of its own for this attempt: an actor presumed lost that is still writing never
     # shares a file with the one redoing its block (both write the same rows; the last rename wins).
     mine = path.with_name(f"{path.stem}.{uuid.uuid4().hex[:12]}.h5")
     eyes, face = task.patch_sizes  # uncompressed: read once by the driver, then deleted
-    writer = H5Writer(mine, task.attrs, eyes, face_patch_size_wh=face, compress=False)
+    writer = H5Writer(mine, task.attrs, eyes, face_patch_size_wh=face, eye_keypoints=keypoints, compress=False)
     try:
         for outcome in _process_stream(task.samples):
             if outcome.skipped is not None:  # where it failed: a path one node cannot see is named with it
@@ -586,6 +596,7 @@ def _run_dataset(
             attrs,
             norm.patch_size_wh,
             face_patch_size_wh=norm.face_patch_size_wh,
+            eye_keypoints=settings.writes_eye_keypoints,
             resume=resume,
             overwrite=overwrite,
         )

@@ -39,6 +39,7 @@ from .texture import MipPyramid, region_pyramid, sample
 
 __all__ = [
     "EYES",
+    "EYE_KEYPOINTS",
     "NormalizationSettings",
     "EyePatch",
     "FaceLabels",
@@ -56,6 +57,11 @@ __all__ = [
 
 #: The subject's eyes, in the order every output lists them.
 EYES = ("left", "right")
+
+#: The points of an eye a drawn (redirected) eye patch records (:attr:`EyePatch.keypoints_px`), in
+#: this order: the iris's centre (the limbus circle's) and the eye opening's centre (the eye
+#: contour's at rest). What ``gazeaug train --keypoint-loss`` teaches the encoder to find.
+EYE_KEYPOINTS = ("iris_centre", "opening_centre")
 
 
 @dataclass(frozen=True)
@@ -207,6 +213,10 @@ class EyePatch:
         gaze: (2,) float64 radians, (pitch, yaw) gaze in this eye's normalized frame; ``None`` when unknown.
         coverage: fraction of pixels that saw the face (1.0 for a real image;
             below 1 where a render filled background).
+        keypoints_px: (2, 2) float64, px: rows the :data:`EYE_KEYPOINTS` (iris centre, eye
+            opening's centre), columns (u, v) in the patch (:meth:`NormalizedCamera.project`:
+            pixel centres at whole numbers, principal point (w / 2, h / 2)); known only where the
+            eye was drawn (redirected eyes), else ``None``.
     """
 
     image: NDArray[np.uint8]
@@ -214,6 +224,7 @@ class EyePatch:
     head_pose: NDArray[np.float64]
     gaze: NDArray[np.float64] | None = None
     coverage: float = 1.0
+    keypoints_px: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -339,6 +350,7 @@ def samples_from_views(
     metas: Sequence[Mapping[str, Any]] | None = None,
     face_patches: NDArray[np.uint8] | None = None,
     face_coverage: ArrayLike | None = None,
+    eye_keypoints_px: ArrayLike | None = None,
 ) -> list[NormalizedSample]:
     """One :class:`NormalizedSample` per pose: the kernel's cameras and labels with the patches sampled through them.
 
@@ -353,6 +365,9 @@ def samples_from_views(
         face_patches: (P, Hf, Wf, 3) uint8 RGB face patches (:func:`face_patch_camera`), given exactly
             when ``settings.face_patch_size_wh`` is set.
         face_coverage: (P,) float, fraction of each face patch that saw the head (default 1.0).
+        eye_keypoints_px: (P, 2, 2, 2) float, px: each pose's eyes (left, right), their
+            :data:`EYE_KEYPOINTS`, (u, v) in the eye's patch (:attr:`EyePatch.keypoints_px`); None:
+            unknown.
 
     Raises:
         GazeAugError: face patches given without the settings asking for them, or missing, or of another size.
@@ -370,6 +385,13 @@ def samples_from_views(
     cov = np.ones((n, 2)) if coverage is None else np.asarray(coverage, dtype=np.float64).reshape(n, 2)
     rot = np.asarray(head_rotations, dtype=np.float64).reshape(n, 3, 3)
     gaze = views.gaze
+    kp = None
+    if eye_keypoints_px is not None:
+        kp = np.asarray(eye_keypoints_px, dtype=np.float64)
+        if kp.shape != (n, 2, len(EYE_KEYPOINTS), 2) or not np.isfinite(kp).all():
+            raise GazeAugError(
+                f"eye keypoints: expected finite {(n, 2, len(EYE_KEYPOINTS), 2)} px, got shape {kp.shape}"
+            )
     out = []
     for i in range(n):
         eyes = [
@@ -379,6 +401,7 @@ def samples_from_views(
                 head_pose=views.head_pose[i, j],
                 gaze=None if gaze is None else gaze[i, j],
                 coverage=float(cov[i, j]),
+                keypoints_px=None if kp is None else kp[i, j],
             )
             for j in range(2)
         ]

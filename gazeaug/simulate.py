@@ -893,6 +893,44 @@ class SimSubject:
         frame = look_at_rotation(-visual, down=[0.0, 1.0, 0.0]).T  # columns: its axes in the head frame
         return frame @ (turn @ np.array([0.0, 0.0, -1.0]))
 
+    def eye_keypoints_mm(
+        self,
+        head_rotation: NDArray[np.float64],
+        head_translation_mm: NDArray[np.float64],
+        target_mm: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """Each eye's :data:`EYE_KEYPOINTS` at a pose looking at ``target_mm``, as :meth:`render_patches` draws them.
+
+        The iris centre is the centre of the limbus circle (the iris is painted on the eyeball
+        with the angular radius ``asin(iris_radius / eyeball_radius)``), ``sqrt(R^2 - r_iris^2)``
+        from the eyeball's centre along its optical axis; the eye opening's centre is the
+        centre of the eye contour at rest (the eyeball's centre moved
+        :func:`eyeball_depth_mm` along the head's -z; the lids' travel with the gaze moves the
+        contour, not this point).
+
+        Args:
+            head_rotation: (3, 3) head frame -> camera frame.
+            head_translation_mm: (3,) mm, camera frame.
+            target_mm: (3,) mm, camera frame: the point both eyes fixate.
+
+        Returns:
+            (2, 2, 3) float64, mm, camera frame: axis 0 the eye (left, right), axis 1 the point
+            (:data:`EYE_KEYPOINTS`: iris centre, opening centre).
+        """
+        s, d = self.settings, self.draw
+        r, t = np.asarray(head_rotation, dtype=np.float64), np.asarray(head_translation_mm, dtype=np.float64)
+        target_head = r.T @ (np.asarray(target_mm, dtype=np.float64) - t)
+        depth = eyeball_depth_mm(s.eyeball_depth_mm, d.eyeball_radius_mm)
+        front = math.sqrt(max(d.eyeball_radius_mm**2 - d.iris_radius_mm**2, 0.0))
+        out = np.zeros((2, 2, 3))
+        for e, side in enumerate(("left", "right")):
+            centre = self.eye_centre[side]
+            head_points = np.stack(
+                [centre + front * self.optical_axis(side, target_head), centre - np.array([0.0, 0.0, depth])]
+            )
+            out[e] = head_points @ r.T + t
+        return out
+
     def _posed_scene(
         self,
         head_rotation: NDArray[np.float64],

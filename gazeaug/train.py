@@ -41,6 +41,7 @@ from .background import interrupt_between_steps
 from .errors import GazeAugError, TracebackText
 from .io_h5 import H5TrainingSet  # the schema's reader lives beside its writer; re-exported here
 from .models import create_model, import_torch, uses_face
+from .models.keypoints import KEYPOINT_SCALE_PX, attach_keypoint_head, keypoint_loss
 from .models.preprocess import (
     check_input_mode,
     input_mode_from_record,
@@ -50,7 +51,7 @@ from .models.preprocess import (
     set_input_mode,
 )
 from .models.shift import MAX_SHIFT_AVERAGE_PX, shift_average_px_of
-from .normalize import NormalizationSettings
+from .normalize import EYE_KEYPOINTS, NormalizationSettings
 from .train_augment import TrainAugment, augment_generator
 from .train_data import check_preload, epoch_batches, hold_rows, placeholder_batch, prefetch_batches, train_inputs
 from .train_graphs import graph_model, quiet_stream_mismatch
@@ -77,6 +78,7 @@ _LEGACY_SETTINGS: dict[str, Any] = {
     "input_mode": "rgb",
     "auto_samples": 250_000,  # not used by a run whose epochs were given, as every older run's were
     "balance_axes": False,
+    "keypoint_loss_weight": 0.0,
 }
 #: The augmentation fields an older gazeaug's checkpoint did not record, as that gazeaug augmented.
 _LEGACY_AUGMENT: dict[str, Any] = {"mirror": 0.0, "head_pose_deg": 0.0, "scale": 0.0}
@@ -151,6 +153,13 @@ class TrainSettings:
             2026-11-25. With an lr of 3e-3, on issue 13's benchmark (3 seeds): 9.38 deg against
             9.93, pitch r 0.66 against 0.57 (docs/model.md). The model file records the weights
             (``loss_weights_pitch_yaw``).
+        keypoint_loss_weight: weight of a keypoint loss (:mod:`gazeaug.models.keypoints`): a head on
+            the eye encoder's stride-4 map learns where each eye's iris centre and opening centre
+            lie (the training set's ``eye_keypoints``, written by ``augment --redirect-eyes``;
+            rows without them, NaN, count for the gaze alone), its mean absolute error in units of
+            10 px added to the gaze loss times this weight. The head is for training only: the
+            model file holds the gaze network alone. Default 0 (off); a number in [0, 100].
+            Measured in docs/model.md ("the keypoint head as a loss").
     """
 
     model: str = "mobilenet_gaze"
@@ -167,6 +176,7 @@ class TrainSettings:
     mirror_average: bool = True
     shift_average_px: int = 3
     balance_axes: bool = True
+    keypoint_loss_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.epochs is None or (_is_integer(self.epochs) and self.epochs >= 1)):
@@ -209,6 +219,11 @@ class TrainSettings:
         if not isinstance(self.balance_axes, (bool, np.bool_)):
             raise GazeAugError(f"balance_axes: expected true or false, got {self.balance_axes!r}")
         object.__setattr__(self, "balance_axes", bool(self.balance_axes))
+        if not (_is_number(self.keypoint_loss_weight) and 0 <= self.keypoint_loss_weight <= 100):
+            raise GazeAugError(
+                f"keypoint loss weight: expected a number in [0, 100], got {self.keypoint_loss_weight!r}"
+            )
+        object.__setattr__(self, "keypoint_loss_weight", float(self.keypoint_loss_weight))
         object.__setattr__(self, "lr", float(self.lr))
         object.__setattr__(self, "weight_decay", float(self.weight_decay))
 
@@ -447,8 +462,10 @@ def _capture(model: Any, data: H5TrainingSet, batch_size: int, face: bool, devic
     torch = import_torch()
     model.train()
     batch = placeholder_batch(data, batch_size, face=face)
-    left, right, head, _, face_in = train_inputs(batch, device, s.augment, s.input_mode, torch.Generator(device))
-    return graph_model(model, (left, right, head) if face_in is None else (left, right, head, face_in))
+    b = train_inputs(batch, device, s.augment, s.input_mode, torch.Generator(device))
+    return graph_model(
+        model, (b.left, b.right, b.head_pose) if b.face is None else (b.left, b.right, b.head_pose, b.face)
+    )
 
 
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
@@ -1000,8 +1017,22 @@ def _train(
     _check_fits(model, s, data, device)
     weights = axis_weights(data.gaze) if s.balance_axes else (1.0, 1.0)
     loss_weights = torch.tensor(weights, dtype=torch.float32, device=device)
+    keypoints = s.keypoint_loss_weight > 0
+    kp_head: Any = None
+    kp_hook: Any = None
+    params = list(model.parameters())
+    if keypoints:
+        if not data.has_eye_keypoints:
+            raise GazeAugError(
+                f"{data.path}: a keypoint loss needs the eye keypoints of the rows, this set has none "
+                "(make it with augment --redirect-eyes, whose eyes are drawn)"
+            )
+        if not np.isfinite(data.eye_keypoints()).any():
+            raise GazeAugError(f"{data.path}: a keypoint loss needs eye keypoints, every row's are unknown (NaN)")
+        kp_head, kp_hook = attach_keypoint_head(model, data.patch_size_wh, len(EYE_KEYPOINTS))
+        params += list(kp_head.parameters())  # after the model's: a checkpoint's optimizer state lines up
     # one fused kernel per step on CUDA (the same update; the host's launching bounds a small model's step)
-    opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay, fused=device.type == "cuda")
+    opt = torch.optim.AdamW(params, lr=s.lr, weight_decay=s.weight_decay, fused=device.type == "cuda")
     steps_per_epoch = math.ceil(len(data) / batch_size)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(
         opt, T_max=max(1, n_epochs * steps_per_epoch), eta_min=s.lr / 100
@@ -1048,6 +1079,11 @@ def _train(
                 f"{ckpt_path}: the checkpoint was made with another data selection ({'; '.join(changed)})"
             )
         _load_weights(model, _state_dict(ck, ckpt_path, "gazeaug checkpoint"), ckpt_path, "gazeaug checkpoint")
+        if kp_head is not None:
+            head_state = ck.get("keypoint_head")
+            if not isinstance(head_state, dict):
+                raise GazeAugError(f"{ckpt_path}: a damaged gazeaug checkpoint (no keypoint head's weights)")
+            _load_weights(kp_head, head_state, ckpt_path, "gazeaug checkpoint")
         try:
             saved_opt = ck["optimizer"]
             groups = saved_opt.get("param_groups") if isinstance(saved_opt, dict) else None
@@ -1066,7 +1102,7 @@ def _train(
     cuda = device.type == "cuda"
     graphed: Any = None  # full batches' forward and backward as CUDA graphs (train_graphs)
     # the same batches either way (train_data): held on the device, read once, or streamed each epoch
-    resident = hold_rows(data, device, face, preload)
+    resident = hold_rows(data, device, face, preload, keypoints)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -1076,25 +1112,37 @@ def _train(
         )
     set_input_mode(model, s.input_mode)  # the validation's predict_arrays prepares inputs as training does
     with interrupt_between_steps() as interrupted:  # Ctrl-C taken between steps, never lost in a callback
-        if cuda and cuda_graphs and start_epoch < n_epochs and len(data) >= batch_size:
+        # a keypoint loss reads the encoder's map through a hook: not with a captured graph
+        if cuda and cuda_graphs and not keypoints and start_epoch < n_epochs and len(data) >= batch_size:
             graphed = _capture(model, data, batch_size, face, device, s)  # before any epoch's reading thread runs
         for epoch in range(start_epoch, n_epochs):
             rng = np.random.default_rng([s.seed, epoch])
             gen = augment_generator(s.seed, epoch, device)
             model.train()
             t0 = time.perf_counter()
-            losses, preds, gazes, sizes = [], [], [], []
-            with contextlib.closing(epoch_batches(data, resident, batch_size, rng, pin=cuda, face=face)) as batches:
+            losses, preds, gazes, sizes, kp_losses = [], [], [], [], []
+            batches_cm = epoch_batches(data, resident, batch_size, rng, pin=cuda, face=face, keypoints=keypoints)
+            with contextlib.closing(batches_cm) as batches:
                 for step, tensors in enumerate(batches):
                     n = len(tensors["gaze"])
-                    a, b, c, y, f = train_inputs(tensors, device, s.augment, s.input_mode, gen)
-                    inputs = (a, b, c) if f is None else (a, b, c, f)
+                    t = train_inputs(tensors, device, s.augment, s.input_mode, gen)
+                    y = t.gaze
+                    inputs = (
+                        (t.left, t.right, t.head_pose) if t.face is None else (t.left, t.right, t.head_pose, t.face)
+                    )
                     call = graphed if graphed is not None and n == batch_size else model
                     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda, cache_enabled=False):
                         pred = call(*inputs)
+                        found = kp_head() if kp_head is not None else None  # (2B, K, 2): lefts, then rights
                     if call is graphed:
                         pred = pred.clone()  # the graph's output memory is overwritten by the next step
                     loss = ((pred.float() - y).abs() * loss_weights).mean()
+                    if found is not None:
+                        found = torch.stack([found[:n], found[n:]], dim=1)  # (B, 2, K, 2), as the targets
+                        kp_term = keypoint_loss(found.float(), t.eye_keypoints)
+                        loss = loss + s.keypoint_loss_weight * kp_term
+                        kp_losses.append(kp_term.detach())
+                        kp_head.feature_map = None  # the map goes with the step
                     opt.zero_grad(set_to_none=True)
                     with quiet_stream_mismatch(graphed is not None):
                         loss.backward()
@@ -1123,6 +1171,9 @@ def _train(
                 "seconds": round(seconds, 3),
                 "samples_per_second": round(seen / seconds, 1),
             }
+            if kp_losses:  # the keypoint term's mean absolute error, px (train_loss includes W times it / 10)
+                steps_kp = torch.stack(kp_losses).double().cpu().numpy() * KEYPOINT_SCALE_PX
+                row["keypoint_error_px"] = float(np.dot(steps_kp, sizes) / seen)
             log.append(row)
             if bar is not None:
                 bar.write(json.dumps(row))
@@ -1136,9 +1187,13 @@ def _train(
                     "data_selection": selection,
                     "log": log,
                     "torch_rng": torch.get_rng_state(),
+                    **({"keypoint_head": kp_head.state_dict()} if kp_head is not None else {}),
                 },
                 ckpt_path,
             )
+    if kp_hook is not None:  # the model file holds the gaze network alone
+        kp_hook.remove()
+        kp_head.feature_map = None
     if graphed is not None:  # the graphs and their memory go now, not at a later garbage collection
         vars(graphed).pop("forward", None)  # PyTorch's replayed forward closes over the wrapper: a cycle
     if bar is not None:

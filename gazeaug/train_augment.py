@@ -74,6 +74,7 @@ from .models.preprocess import eyes_to_float
 __all__ = [
     "TrainAugment",
     "augment_eyes",
+    "augment_eyes_and_points",
     "augment_generator",
     "jitter_head_pose",
     "mirror_samples",
@@ -98,7 +99,7 @@ class TrainAugment:
         enabled: augment at all (default True); False trains on the patches as they are.
         shift_px: largest translation, pixels per axis, an integer in [0, 16] (default 10: the framing
             of test-time normalization, from detected landmarks, moves an eye's contour centre by
-            1.4 px median and 4.65 px at the 95th percentile, and each person's eyes by several
+            1.1 px median and 3.9 px at the 95th percentile, and each person's eyes by up to 5 px
             more; docs/model.md).
         blur_sigma: largest Gaussian blur sigma, pixels, in [0, 3] (default 1.2).
         colour: per-channel gain spread, in [0, 1) (default 0.08: gains 0.92 to 1.08).
@@ -313,8 +314,14 @@ def jitter_head_pose(head: Any, augment: TrainAugment, generator: Any) -> Any:
 
 
 def mirror_samples(
-    eyes: Any, head_pose: Any, gaze: Any, augment: TrainAugment, generator: Any, face: Any = None
-) -> tuple[Any, Any, Any, Any]:
+    eyes: Any,
+    head_pose: Any,
+    gaze: Any,
+    augment: TrainAugment,
+    generator: Any,
+    face: Any = None,
+    keypoints: Any = None,
+) -> tuple[Any, Any, Any, Any, Any]:
     """Mirror a random share (``augment.mirror``) of a batch's samples left-right.
 
     A mirrored sample's left patch is its right patch mirrored about the normalized camera's
@@ -333,19 +340,24 @@ def mirror_samples(
         generator: a ``torch.Generator`` on the tensors' device.
         face: uint8 torch tensor (B, Hf, Wf, 3) RGB, the face patches, or None; a mirrored
             sample's face is mirrored about its own principal point.
+        keypoints: float32 torch tensor (B, 2, K, 2), px: each sample's eyes (left, right), K
+            points, (u, v) in the eye's patch (:data:`gazeaug.normalize.EYE_KEYPOINTS`), or None; a
+            mirrored sample's left eye takes the right eye's points at ``u -> w - u`` and the
+            other way round.
 
     Returns:
-        (eyes, head_pose, gaze, face) of the same shapes, dtypes and device (face None when not given).
+        (eyes, head_pose, gaze, face, keypoints) of the same shapes, dtypes and device (face and
+        keypoints None when not given).
     """
     torch = import_torch()
     b = gaze.shape[0]
     if not augment.enabled or b == 0:
-        return eyes, head_pose, gaze, face
+        return eyes, head_pose, gaze, face, keypoints
     from facemesh.conventions import MIRROR_PITCHYAW, mirrored_columns
 
     flip = torch.rand(b, generator=generator, device=eyes.device) < augment.mirror
     if augment.mirror == 0:  # decided on the host: no wait for the device
-        return eyes, head_pose, gaze, face
+        return eyes, head_pose, gaze, face, keypoints
     left, right = eyes[:b], eyes[b:]
     cols = torch.as_tensor(mirrored_columns(eyes.shape[2]), device=eyes.device)
     f4 = flip[:, None, None, None]
@@ -355,27 +367,43 @@ def mirror_samples(
         face = torch.where(f4, face[:, :, face_cols], face)
     sign = torch.as_tensor(MIRROR_PITCHYAW, dtype=gaze.dtype, device=gaze.device)
     factor = torch.where(flip[:, None], sign, torch.ones_like(sign))
-    return eyes, head_pose * factor, gaze * factor, face
+    if keypoints is not None:  # u -> w - u (the columns' mirror), the eyes swapped
+        swapped = keypoints.flip(1).clone()
+        swapped[..., 0] = eyes.shape[2] - swapped[..., 0]
+        keypoints = torch.where(flip[:, None, None, None], swapped, keypoints)
+    return eyes, head_pose * factor, gaze * factor, face, keypoints
 
 
 def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
+    """:func:`augment_eyes_and_points` without points: the augmented patches alone."""
+    return augment_eyes_and_points(eyes, None, augment, generator)[0]
+
+
+def augment_eyes_and_points(eyes: Any, points: Any, augment: TrainAugment, generator: Any) -> tuple[Any, Any]:
     """Augment a batch of eye patches on their device (see the module docstring).
+
+    The points of each patch, when given, move with its content: the zoom takes ``p`` to
+    ``c + f (p - c)`` (``c`` the principal point (w / 2, h / 2)), the translation adds
+    ``(right, down)``; the other operations leave them. The same draws either way.
 
     Args:
         eyes: uint8 torch tensor (N, H, W, 3) RGB, on the device that trains (the left and the right
             eyes of a batch stacked: every patch gets its own draws).
+        points: float32 torch tensor (N, K, 2), px, (u, v) in each patch (pixel centres at whole
+            numbers), the same device, or None (NaN stays NaN).
         augment: the strengths.
         generator: a ``torch.Generator`` on the same device (:func:`augment_generator`).
 
     Returns:
-        float32 (N, 3, H, W), RGB, in [0, 255] grey levels (not rounded), in channels-last memory
-        order (the model trains fastest on it, about 1.5 x on the CPU), the same device: ready for
-        :func:`gazeaug.models.preprocess.scale_eyes`. With ``augment.enabled`` False, the patches
-        as they are (nothing drawn).
+        (patches, points): float32 (N, 3, H, W), RGB, in [0, 255] grey levels (not rounded), in
+        channels-last memory order (the model trains fastest on it, about 1.5 x on the CPU), the
+        same device: ready for :func:`gazeaug.models.preprocess.scale_eyes`; the points moved (None
+        when not given). With ``augment.enabled`` False, the patches and points as they are
+        (nothing drawn).
     """
     torch = import_torch()
     if not augment.enabled or eyes.shape[0] == 0:
-        return eyes_to_float(eyes)
+        return eyes_to_float(eyes), points
     n, dev, g = eyes.shape[0], eyes.device, generator
 
     def uniform(lo: float, hi: float, *shape: int) -> Any:
@@ -395,6 +423,13 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     # without it draws as before it existed
     zoom = uniform(1 - augment.scale, 1 + augment.scale) if augment.scale > 0 else None
     x = eyes_to_float(eyes)
+    if points is not None:
+        h, w = eyes.shape[1:3]
+        centre = torch.tensor([w / 2.0, h / 2.0], dtype=points.dtype, device=dev)
+        if zoom is not None:
+            points = centre + (points - centre) * zoom.view(n, 1, 1).to(points.dtype)
+        if augment.shift_px:
+            points = points + shift.flip(1).view(n, 1, 2).to(points.dtype)  # (down, right) -> (u, v)
     if zoom is not None:
         x = zoom_patches(x, zoom)
     if augment.shift_px or augment.blur_sigma > 0:
@@ -407,4 +442,4 @@ def augment_eyes(eyes: Any, augment: TrainAugment, generator: Any) -> Any:
     if augment.noise > 0:  # one draw per pixel, the same on the three channels (luminance noise)
         noise = torch.randn((n, 1, *x.shape[2:]), generator=g, device=dev)
         x = x.add_(noise.mul_(noise_std.view(n, 1, 1, 1)))
-    return x.clamp_(0, 255)
+    return x.clamp_(0, 255), points

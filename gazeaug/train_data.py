@@ -21,7 +21,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Generator, Iterator
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,7 +30,7 @@ from .errors import GazeAugError
 from .io_h5 import H5TrainingSet
 from .models import import_torch
 from .models.preprocess import scale_eyes
-from .train_augment import TrainAugment, augment_eyes, jitter_head_pose, mirror_samples
+from .train_augment import TrainAugment, augment_eyes, augment_eyes_and_points, jitter_head_pose, mirror_samples
 
 __all__ = [
     "PRELOAD_CHOICES",
@@ -48,6 +48,7 @@ __all__ = [
     "should_preload",
     "prefetch_batches",
     "train_inputs",
+    "TrainInputs",
 ]
 
 #: ``preload``: ``auto`` (resident when it fits, :func:`should_preload`), ``yes`` (resident, whatever
@@ -71,14 +72,15 @@ def byte_size(n: int) -> str:
     return f"{int(n)} bytes"
 
 
-def resident_bytes(data: H5TrainingSet, face: bool) -> int:
+def resident_bytes(data: H5TrainingSet, face: bool, keypoints: bool = False) -> int:
     """Bytes a :class:`ResidentSet` of ``data`` takes.
 
     Per row: two eye patches (uint8), the face patch when ``face`` and the set has one, head pose
-    and gaze (float32 (2,) each), and an int64 index.
+    and gaze (float32 (2,) each), the eye keypoints (float32 (2, 2, 2)) with ``keypoints``, and
+    an int64 index.
     """
     w, h = data.patch_size_wh
-    per_row = 2 * w * h * 3 + 2 * 2 * 4 + 8
+    per_row = 2 * w * h * 3 + 2 * 2 * 4 + 8 + (2 * 2 * 2 * 4 if keypoints else 0)
     if face and data.face_patch_size_wh is not None:
         fw, fh = data.face_patch_size_wh
         per_row += fw * fh * 3
@@ -111,7 +113,7 @@ def check_preload(preload: Any) -> None:
         raise GazeAugError(f"preload: expected one of {', '.join(PRELOAD_CHOICES)}, got {preload!r}")
 
 
-def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any) -> bool:
+def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any, keypoints: bool = False) -> bool:
     """Whether training holds ``data`` resident on ``device`` (:data:`PRELOAD_CHOICES`).
 
     ``auto``: when :func:`resident_bytes` is at most :data:`PRELOAD_SHARE` of
@@ -124,7 +126,7 @@ def should_preload(preload: str, data: H5TrainingSet, face: bool, device: Any) -
     check_preload(preload)
     if preload != "auto":
         return preload == "yes"
-    need = resident_bytes(data, face)
+    need = resident_bytes(data, face, keypoints)
     free = memory_available(device)
     if free is None or need > PRELOAD_SHARE * free:
         return False
@@ -135,16 +137,18 @@ class ResidentSetTooLarge(GazeAugError):
     """The device cannot hold a training set's rows (:class:`ResidentSet`); ``remedy="stream"``: ``preload="no"``."""
 
 
-def hold_rows(data: H5TrainingSet, device: Any, face: bool, preload: str) -> ResidentSet | None:
+def hold_rows(
+    data: H5TrainingSet, device: Any, face: bool, preload: str, keypoints: bool = False
+) -> ResidentSet | None:
     """The :class:`ResidentSet` training uses, or None to stream (:func:`should_preload`).
 
     ``auto`` streams, with a warning, a set whose allocation fails although it looked as if it
     fitted; ``yes`` raises :class:`ResidentSetTooLarge` then.
     """
-    if not should_preload(preload, data, face, device):
+    if not should_preload(preload, data, face, device, keypoints):
         return None
     try:
-        return ResidentSet(data, device, face)
+        return ResidentSet(data, device, face, keypoints)
     except ResidentSetTooLarge as exc:
         if preload == "yes":
             raise
@@ -161,6 +165,7 @@ class ResidentSet:
         data: the training set.
         device: the ``torch.device`` to hold the rows on.
         face: hold the face patches too (a model that reads them).
+        keypoints: hold the eye keypoints too (a training with a keypoint loss).
 
     Attributes:
         data: the training set.
@@ -168,6 +173,7 @@ class ResidentSet:
         left, right: uint8 (K, H, W, 3) RGB eye patches, the rows in use in file order.
         head_pose, gaze: float32 (K, 2) radians (pitch, yaw), face-centre normalized frame.
         face_patches: uint8 (K, Hf, Wf, 3) RGB, or None.
+        eye_keypoints: float32 (K, 2, 2, 2) px (the schema's ``eye_keypoints``), or None.
 
     Raises:
         ResidentSetTooLarge: the device cannot hold the rows (the message gives their size): on
@@ -175,14 +181,14 @@ class ResidentSet:
             size and fails page by page as it is filled); on a GPU, when allocating them fails.
     """
 
-    def __init__(self, data: H5TrainingSet, device: Any, face: bool = False):
+    def __init__(self, data: H5TrainingSet, device: Any, face: bool = False, keypoints: bool = False):
         torch = import_torch()
         self.data = data
         self.face = bool(face and data.face_patch_size_wh is not None)
         self._device = device
         w, h = data.patch_size_wh
         k = len(data)
-        need = resident_bytes(data, self.face)
+        need = resident_bytes(data, self.face, keypoints)
         too_large = ResidentSetTooLarge(
             f"{data.path}: its {k} rows ({byte_size(need)}) do not fit on {device}", remedy="stream"
         )
@@ -211,6 +217,7 @@ class ResidentSet:
                 lo += n
         self.head_pose = torch.from_numpy(np.ascontiguousarray(data.head_pose, dtype=np.float32)).to(device)
         self.gaze = torch.from_numpy(np.ascontiguousarray(data.gaze, dtype=np.float32)).to(device)
+        self.eye_keypoints = torch.from_numpy(data.eye_keypoints()).to(device) if keypoints else None
 
     def __len__(self) -> int:
         return len(self.data)
@@ -226,7 +233,8 @@ class ResidentSet:
         Yields:
             ``eyes`` uint8 (2B, H, W, 3), the left eyes then the right eyes, RGB; ``head_pose`` and
             ``gaze`` float32 (B, 2) radians (pitch, yaw); ``face`` uint8 (B, Hf, Wf, 3) RGB when
-            held. B rows (the last batch may have fewer), all on the device.
+            held; ``eye_keypoints`` float32 (B, 2, 2, 2) px when held. B rows (the last batch may
+            have fewer), all on the device.
         """
         torch = import_torch()
         index = torch.from_numpy(self.positions(rng)).to(self._device)
@@ -239,6 +247,8 @@ class ResidentSet:
             }
             if self.face_patches is not None:
                 out["face"] = self.face_patches.index_select(0, i)
+            if self.eye_keypoints is not None:
+                out["eye_keypoints"] = self.eye_keypoints.index_select(0, i)
             yield out
 
 
@@ -250,6 +260,7 @@ def prefetch_batches(
     depth: int = PREFETCH,
     pin: bool = False,
     face: bool = False,
+    keypoints: bool = False,
 ) -> Generator[tuple[dict[str, NDArray[Any]], dict[str, Any]], None, None]:
     """:meth:`H5TrainingSet.batches`, read ``depth`` batches ahead by a background thread.
 
@@ -263,7 +274,8 @@ def prefetch_batches(
         ``tensors`` the CPU torch tensors the training moves to its device: ``eyes`` uint8
         (2B, H, W, 3), the left eyes then the right eyes, RGB; ``head_pose`` and ``gaze`` float32
         (B, 2) radians (pitch, yaw); with ``face``, ``face`` uint8 (B, Hf, Wf, 3) RGB as well (the
-        batch then holds it too). In pinned memory with ``pin`` (for CUDA's asynchronous copies).
+        batch then holds it too); with ``keypoints``, ``eye_keypoints`` float32 (B, 2, 2, 2) px. In
+        pinned memory with ``pin`` (for CUDA's asynchronous copies).
     """
     torch = import_torch()
 
@@ -279,9 +291,11 @@ def prefetch_batches(
         }
         if face:
             out["face"] = tensor(batch["face"])
+        if keypoints:
+            out["eye_keypoints"] = tensor(batch["eye_keypoints"].astype(np.float32, copy=False))
         return out
 
-    keys = H5TrainingSet.batch_keys(face)
+    keys = H5TrainingSet.batch_keys(face, keypoints)
     if depth <= 0:
         with contextlib.closing(data.batches(batch_size, rng, keys)) as it:  # type: ignore[type-var]
             for batch in it:
@@ -305,6 +319,7 @@ def epoch_batches(
     *,
     pin: bool = False,
     face: bool = False,
+    keypoints: bool = False,
 ) -> Generator[dict[str, Any], None, None]:
     """One epoch's batches as tensors (those of :meth:`ResidentSet.batches`).
 
@@ -314,7 +329,7 @@ def epoch_batches(
     if resident is not None:
         yield from resident.batches(batch_size, rng)
         return
-    with contextlib.closing(prefetch_batches(data, batch_size, rng, pin=pin, face=face)) as it:
+    with contextlib.closing(prefetch_batches(data, batch_size, rng, pin=pin, face=face, keypoints=keypoints)) as it:
         for _, tensors in it:
             yield tensors
 
@@ -350,9 +365,28 @@ def placeholder_batch(data: H5TrainingSet, batch_size: int, *, face: bool = Fals
     return out
 
 
+class TrainInputs(NamedTuple):
+    """A batch ready for the model (:func:`train_inputs`), on the training device.
+
+    Attributes:
+        left, right: float32 (B, 3, H, W) in [-1, 1].
+        head_pose, gaze: float32 (B, 2) radians (pitch, yaw), face-centre normalized frame.
+        face: float32 (B, 3, Hf, Wf) in [-1, 1], or None.
+        eye_keypoints: float32 (B, 2, 2, 2) px, moved with the patches (mirror, zoom, translation),
+            NaN where unknown; None when the batch has none.
+    """
+
+    left: Any
+    right: Any
+    head_pose: Any
+    gaze: Any
+    face: Any
+    eye_keypoints: Any
+
+
 def train_inputs(
     tensors: dict[str, Any], device: Any, augment: TrainAugment, input_mode: str, generator: Any
-) -> tuple[Any, Any, Any, Any, Any]:
+) -> TrainInputs:
     """A batch (:func:`epoch_batches`) -> the model's inputs and target, on ``device``.
 
     The eye patches travel as uint8 (asynchronously from pinned memory; a resident batch is on the
@@ -364,20 +398,26 @@ def train_inputs(
     head pose jittered (:func:`gazeaug.train_augment.jitter_head_pose`; off by default).
 
     Returns:
-        left, right: float32 (B, 3, H, W) in [-1, 1]; head pose, gaze: float32 (B, 2) radians;
-        face: float32 (B, 3, Hf, Wf) in [-1, 1] when the batch has face patches (augmented after
-        the eyes, with draws of its own), else None.
+        :class:`TrainInputs`: the face patches (when the batch has them) augmented after the eyes,
+        with draws of their own; the eye keypoints (when the batch has them) moved as their patches.
     """
     torch = import_torch()
     eyes = tensors["eyes"].to(device, non_blocking=True)
     head = tensors["head_pose"].to(device, non_blocking=True)
     gaze = tensors["gaze"].to(device, non_blocking=True)
     face = tensors["face"].to(device, non_blocking=True) if "face" in tensors else None
+    points = tensors["eye_keypoints"].to(device, non_blocking=True) if "eye_keypoints" in tensors else None
     with torch.no_grad():
-        eyes, head, gaze, face = mirror_samples(eyes, head, gaze, augment, generator, face=face)
-        x = scale_eyes(augment_eyes(eyes, augment, generator), input_mode)
+        eyes, head, gaze, face, points = mirror_samples(
+            eyes, head, gaze, augment, generator, face=face, keypoints=points
+        )
+        flat = None if points is None else torch.cat([points[:, 0], points[:, 1]])  # as the eyes: lefts, rights
+        x, flat = augment_eyes_and_points(eyes, flat, augment, generator)
+        x = scale_eyes(x, input_mode)
         if face is not None:
             face = scale_eyes(augment_eyes(face, augment, generator), input_mode)
         head = jitter_head_pose(head, augment, generator)  # last: nothing drawn when off
     n = x.shape[0] // 2
-    return x[:n], x[n:], head, gaze, face
+    if flat is not None:
+        points = torch.stack([flat[:n], flat[n:]], dim=1)
+    return TrainInputs(x[:n], x[n:], head, gaze, face, points)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from helpers import benchmark_module
 
 
@@ -17,6 +18,11 @@ def _record(centre_left, axis_left, radius=12.0):
     }
 
 
+def _seen(x, z, contour):
+    """Zhang's normalized camera (f 650 px, d_n 600 mm, reference at the contour centre): 650 x / (z 600 / ||c||)."""
+    return 650.0 * x / (z * 600.0 / math.hypot(*contour))
+
+
 def test_eye_points_project_by_hand():
     framing = benchmark_module("framing")
     t = math.radians(10.0)
@@ -27,26 +33,32 @@ def test_eye_points_project_by_hand():
     ]
     d = {"source_index": np.array([0, 1, 2]), "R_norm_left": np.tile(np.eye(3), (3, 1, 1))}
     d["R_norm_right"] = d["R_norm_left"]
-    pts = framing._eye_points_px(records, d, {}, 650.0)
-    # eyeball centre 10 mm off the axis at 600 mm: 650 * 10 / 600 px
-    assert np.allclose(pts["eyeball"][0, 0], [650.0 * 10 / 600, 0.0])
-    # the pupil 12 mm toward the camera: 650 * 10 / 588
-    assert np.allclose(pts["pupil"][0, 0], [650.0 * 10 / 588, 0.0])
-    # the contour 10.5 mm in front of a 12 mm eyeball (head +z is the camera's +z here): 650 * 10 / 589.5
-    assert np.allclose(pts["contour"][0, 0], [650.0 * 10 / 589.5, 0.0])
-    # the axis turned 10 deg to +x: the pole at (12 sin 10, 0, 600 - 12 cos 10)
-    assert np.allclose(pts["pupil"][1, 0], [650.0 * 12 * math.sin(t) / (600 - 12 * math.cos(t)), 0.0])
+    pts = framing._eye_points_px(records, d, {}, 650.0, 600.0)
+    # the contour 10.5 mm in front of a 12 mm eyeball (head +z is the camera's +z here): (10, 0, 589.5),
+    # the camera's reference point; S scales depth by 600 / ||(10, 0, 589.5)||
+    c = (10.0, 0.0, 589.5)
+    assert np.allclose(pts["contour"][0, 0], [_seen(10, 589.5, c), 0.0])
+    assert np.allclose(pts["eyeball"][0, 0], [_seen(10, 600, c), 0.0])  # the eyeball centre, 600 mm deep
+    assert np.allclose(pts["pupil"][0, 0], [_seen(10, 588, c), 0.0])  # the pupil 12 mm toward the camera
+    # at the axis's depth ||c|| a point 10 mm off it lands 650 * 10 / 600 px off the principal point
+    assert _seen(10, math.hypot(*c), c) == pytest.approx(650.0 * 10 / 600)
+    # the axis turned 10 deg to +x: the pole at (12 sin 10, 0, 600 - 12 cos 10); the contour on the axis
+    assert np.allclose(pts["pupil"][1, 0], [_seen(12 * math.sin(t), 600 - 12 * math.cos(t), (0.0, 0.0, 589.5)), 0.0])
     # a 13 mm eyeball sits 1 mm deeper: its contour 11.5 mm in front of its centre, its pupil 13 mm
-    assert np.allclose(pts["contour"][2, 0], [650.0 * 10 / 588.5, 0.0])
-    assert np.allclose(pts["pupil"][2, 0], [650.0 * 10 / 587, 0.0])
-    assert np.allclose(pts["pupil"][2, 1], [650.0 * -30 / 587, 0.0])  # the subject's radius for both eyes
-    # a record without a drawn subject takes the settings' radius
+    c13 = (10.0, 0.0, 588.5)
+    assert np.allclose(pts["contour"][2, 0], [_seen(10, 588.5, c13), 0.0])
+    assert np.allclose(pts["pupil"][2, 0], [_seen(10, 587, c13), 0.0])
+    # the subject's radius for both eyes; each eye's own reference (the right contour (-30, 0, 588.5))
+    assert np.allclose(pts["pupil"][2, 1], [_seen(-30, 587, (-30.0, 0.0, 588.5)), 0.0])
+    # a record without a drawn subject takes the settings' radius (11 mm: 9.5 mm deep)
     bare = _record([10.0, 0.0, 600.0], [0.0, 0.0, -1.0])
     del bare["subject_draw"]
     one = {k: v[:1] for k, v in d.items()}
-    assert np.allclose(
-        framing._eye_points_px([bare], one, {"eyeball_radius_mm": 11.0}, 650.0)["pupil"][0, 0], [650.0 * 10 / 589, 0.0]
-    )
+    got = framing._eye_points_px([bare], one, {"eyeball_radius_mm": 11.0}, 650.0, 600.0)["pupil"][0, 0]
+    assert np.allclose(got, [_seen(10, 589, (10.0, 0.0, 590.5)), 0.0])
+    # another normalized distance scales every offset: d_n 300 mm sees the face twice as large
+    half = framing._eye_points_px(records[:1], one, {}, 650.0, 300.0)
+    assert np.allclose(half["pupil"][0, 0], 2 * pts["pupil"][0, 0])
 
 
 def test_leave_one_subject_out_reads_an_exact_linear_law_exactly():
@@ -73,12 +85,12 @@ def test_eye_points_follow_the_head_and_the_normalizing_rotation():
     # y along the camera's +x, z along z (a 90 deg roll)
     r_norm = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     d = {"source_index": np.array([0]), "R_norm_left": r_norm[None], "R_norm_right": r_norm[None]}
-    pts = framing._eye_points_px([rec], d, {}, 650.0)
+    pts = framing._eye_points_px([rec], d, {}, 650.0, 600.0)
     # the contour 10.5 mm in front of the eyeball along the head's -z: camera (-10.5, 0, 600);
     # in the normalized camera (0, -10.5, 600): 10.5 mm up in the patch
-    assert np.allclose(pts["contour"][0, 0], [0.0, 650.0 * -10.5 / 600])
-    # the right eyeball at camera (-30, 0, 600): normalized (0, -30, 600)
-    assert np.allclose(pts["eyeball"][0, 1], [0.0, 650.0 * -30 / 600])
+    assert np.allclose(pts["contour"][0, 0], [0.0, _seen(-10.5, 600, (-10.5, 600.0))])
+    # the right eyeball at camera (-30, 0, 600): normalized (0, -30, 600); its contour (-40.5, 0, 600)
+    assert np.allclose(pts["eyeball"][0, 1], [0.0, _seen(-30, 600, (-40.5, 600.0))])
 
 
 def test_geometric_reading_fits_the_pupils_offset_from_the_contour():

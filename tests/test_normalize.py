@@ -136,6 +136,32 @@ def test_normalized_camera_by_hand():
     np.testing.assert_allclose(cam.denormalize_vector(cam.normalize_vector(g)), g / np.linalg.norm(g), atol=1e-12)
 
 
+def test_normalized_camera_projects_points_by_hand():
+    # the eye 300 mm straight ahead, d_n 600: the patch sees the face as from 600 mm (S halves z)
+    cam = normalized_camera([0, 0, 300.0], np.eye(3), distance_mm=600, focal_px=650, size_wh=(60, 36))
+    # the reference lands on the principal point (w / 2, h / 2), pixel centres at whole numbers
+    np.testing.assert_allclose(cam.project([0.0, 0.0, 300.0]), [30.0, 18.0], atol=1e-12)
+    # 10 mm right and 5 mm down at the reference's depth: 650 * 10 / 600 and 650 * 5 / 600 px off it
+    np.testing.assert_allclose(cam.project([10.0, 5.0, 300.0]), [30 + 650 * 10 / 600, 18 + 650 * 5 / 600], atol=1e-12)
+    # 12 mm nearer the camera (288 mm): S R p = (10, 0, 576), so 650 * 10 / 576 px right
+    np.testing.assert_allclose(cam.project([10.0, 0.0, 288.0]), [30 + 650 * 10 / 576, 18.0], atol=1e-12)
+    # the camera turned 45 deg (eye at x = z): a point 10 mm along its x axis, at the reference
+    cam = normalized_camera([400.0, 0, 400.0], np.eye(3), distance_mm=600, focal_px=650, size_wh=(60, 36))
+    s = np.sqrt(0.5)
+    e = np.array([400.0, 0.0, 400.0])
+    x_axis = np.array([s, 0.0, -s])
+    # ||e|| = 400 sqrt 2, S scales z by 600 / ||e||: the 10 mm land 650 * 10 / 600 px right
+    np.testing.assert_allclose(cam.project(e + 10 * x_axis), [30 + 650 * 10 / 600, 18.0], atol=1e-9)
+    # many points at once, shape (..., 3) -> (..., 2); the inverse of pixel_to_ray
+    uv = np.array([[3.0, 4.0], [57.0, 30.5]])
+    rays = np.c_[uv, np.ones(2)] @ cam.pixel_to_ray.T
+    np.testing.assert_allclose(cam.project((rays * [[2.0], [0.5]])[None]), uv[None], atol=1e-9)
+    with pytest.raises(GazeAugError, match="in front of"):
+        cam.project([0.0, 0.0, -1.0])
+    with pytest.raises(GazeAugError, match=r"\(\.\.\., 3\)"):
+        cam.project([1.0, 2.0])
+
+
 def test_bad_gaze_and_eyes_behind_the_camera(mpii):
     cam, model, landmarks, image, target, raw = mpii
     pose = solve_head_pose(landmarks, model.vertices_mm, cam)

@@ -100,6 +100,39 @@ def test_redirected_labels_follow_the_target_not_the_source(astronaut):
     assert min(rows["down"]) > max(rows["up"]) + 1.0
 
 
+def _pupil_centroid(patch: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(u, v) of the darkest 6 % of a 15 x 15 px window about ``near``: the pupil (2 mm, about 2 px wide)."""
+    grey = patch.astype(np.float64).mean(axis=2)
+    vs, us = np.mgrid[0 : grey.shape[0], 0 : grey.shape[1]]
+    window = (np.abs(us - near[0]) <= 7) & (np.abs(vs - near[1]) <= 7)
+    dark = window & (grey <= np.quantile(grey[window], 0.06))
+    return np.array([us[dark].mean(), vs[dark].mean()])
+
+
+def test_redirected_eyes_record_where_their_iris_is_drawn(astronaut):
+    # the eyes look at the camera or 150 mm beside it, iris and pupil in full view: the pupil drawn in
+    # the patch lies on the recorded iris centre (the pole and the limbus's centre project within a
+    # fraction of a pixel of each other for eyes turned this little), and the recorded points move
+    # the way the eyes turn (image u to the right for a target toward the camera's +x)
+    fit, asset = astronaut
+    seen = {}
+    for name, x in (("ahead", 0.0), ("right", 150.0), ("left", -150.0)):
+        subject = redirect_subject(fit, asset, np.random.default_rng(1))
+        places, targets = rig_looks(asset, _still_rig((x, 0.0, -500.0)), 1, np.random.default_rng(0))
+        (sample,) = render_redirected(subject, asset, places, targets)
+        for eye in (sample.left, sample.right):
+            kp = eye.keypoints_px
+            assert kp.shape == (2, 2) and np.isfinite(kp).all()
+            np.testing.assert_allclose(_pupil_centroid(eye.image, kp[0]), kp[0], atol=0.8)
+            # the opening's centre: near the patch centre, where normalization puts the eye
+            assert np.abs(kp[1] - [30.0, 18.0]).max() < 4.0
+        seen[name] = np.stack([sample.left.keypoints_px, sample.right.keypoints_px])
+    # the same head, the same openings; the irises move: right of ahead for +x, left for -x
+    np.testing.assert_allclose(seen["right"][:, 1], seen["ahead"][:, 1], atol=1e-9)
+    assert (seen["right"][:, 0, 0] > seen["ahead"][:, 0, 0] + 1.0).all()
+    assert (seen["left"][:, 0, 0] < seen["ahead"][:, 0, 0] - 1.0).all()
+
+
 def test_supersampled_eyes_soften_edges_and_keep_the_picture(astronaut):
     # 2 x 2 rays per pixel, averaged: the same eyes and labels, edges (the lids' on the eyeball, the
     # iris's, the pupil's) averaged over each pixel as a camera's pixel averages them, so less of the
@@ -183,9 +216,27 @@ def test_cli_augment_redirect_eyes(tmp_path, capsys):
     with h5py.File(out) as f:
         assert len(f["gaze"]) == 6 and '"eyes": "redirect"' in f.attrs["settings"]
         head_minus_gaze = np.degrees(f["head_pose"][:, 0] - f["gaze"][:, 0])
+        points = f["eye_keypoints"][()]
     # the wheelchair user looks down at the table: the eyes about 15-20 deg below the head's direction
     # (docs/simulation.md measures -18.1 on average), where kept eyes stay near the screen users' -3
     assert head_minus_gaze.mean() > 8.0
+    # every drawn eye records its points, inside its 60 x 36 patch
+    assert points.shape == (6, 2, 2, 2) and np.isfinite(points).all()
+    assert (points[..., 0] > 0).all() and (points[..., 0] < 60).all() and (points[..., 1] > 0).all()
+    assert (points[..., 1] < 36).all()
+    # with the sources' own rows: theirs are unknown (NaN), the drawn rows' known
+    both = tmp_path / "both.h5"
+    args = ["augment", str(sim), "-o", str(both), "--rig", "wheelchair", "--redirect-eyes", "--per-sample", "3"]
+    assert main([*args, "--with-source", "--quiet"]) == 0
+    with h5py.File(both) as f:
+        source_rows = np.isnan(f["sampled_yaw_pitch"][:, 0])
+        known = np.isfinite(f["eye_keypoints"][()]).all(axis=(1, 2, 3))
+    assert source_rows.sum() == 2 and (known == ~source_rows).all()
+    # kept eyes (the photo's own): no column
+    kept = tmp_path / "kept.h5"
+    assert main(["augment", str(sim), "-o", str(kept), "--per-sample", "1", "--quiet"]) == 0
+    with h5py.File(kept) as f:
+        assert "eye_keypoints" not in f
 
 
 def test_augment_draws_eyes_per_sample(tmp_path, monkeypatch):

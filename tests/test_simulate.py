@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -74,6 +75,28 @@ def test_eyeballs_fixate_the_target_and_lids_follow_pitch(faces_dir, detector):
     up = subj.render(r, t, r @ target + t, k, (640, 480), np.random.default_rng(1))
     down = subj.render(r, t, r @ np.array([0.0, 300.0, -400.0]) + t, k, (640, 480), np.random.default_rng(1))
     assert up.optical_axes["left"][1] < 0 < down.optical_axes["left"][1]  # looking up: y < 0 (camera y is down)
+    # the eye keypoints, from the frame's own record: the iris centre sqrt(R^2 - r_iris^2) out along
+    # the optical axis, the opening's centre 10.5 mm (12 mm eyeball) in front of the eyeball, along
+    # the head's -z (here the camera's -z: the head is unturned)
+    pts = subj.eye_keypoints_mm(r, t, r @ target + t)
+    d = subj.draw
+    front = math.sqrt(d.eyeball_radius_mm**2 - d.iris_radius_mm**2)
+    depth = 10.5 + (d.eyeball_radius_mm - 12.0)
+    for e, side in enumerate(("left", "right")):
+        centre = up.eyeball_centres_mm[side]
+        np.testing.assert_allclose(pts[e, 0], centre + front * up.optical_axes[side], atol=1e-9)
+        np.testing.assert_allclose(pts[e, 1], centre - [0.0, 0.0, depth], atol=1e-9)
+    # the head turned 30 deg about the camera's y: the opening lies in front of the eyeball along the
+    # turned head's -z, (-sin 30, 0, -cos 30) in the camera (its +z, into the head, is (sin 30, 0, cos 30))
+    a = math.radians(30.0)
+    turned = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
+    frame = subj.render(turned, t, np.array([0.0, 0.0, 0.0]), k, (640, 480), np.random.default_rng(1))
+    pts = subj.eye_keypoints_mm(turned, t, np.zeros(3))
+    for e, side in enumerate(("left", "right")):
+        centre = frame.eyeball_centres_mm[side]
+        np.testing.assert_allclose(pts[e, 0], centre + front * frame.optical_axes[side], atol=1e-9)
+        into_head = np.array([math.sin(a), 0.0, math.cos(a)])
+        np.testing.assert_allclose(pts[e, 1], centre - depth * into_head, atol=1e-9)
 
 
 def test_rig_files_describe_the_simulation(tmp_path):

@@ -213,7 +213,7 @@ def test_mirror_swaps_flips_and_negates_the_yaws():
     head = torch.tensor([[0.1, 0.2], [-0.3, 0.4], [0.0, -0.5], [0.2, 0.0]])
     gaze = torch.tensor([[-0.2, 0.3], [0.1, -0.1], [0.4, 0.6], [-0.1, -0.2]])
     g = augment_generator(0, 0)
-    e2, h2, g2, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=1.0), g)
+    e2, h2, g2, _, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=1.0), g)
     # every sample mirrored: its new left patch is its right one read right to left, and the other way round
     # about the principal point (w / 2 = 30, pixel centres at whole numbers): column x from column 60 - x,
     # column 0 (no source) repeating column 59; the eye centre's column 30 stays column 30
@@ -225,7 +225,7 @@ def test_mirror_swaps_flips_and_negates_the_yaws():
     assert torch.equal(h2, head * torch.tensor([1.0, -1.0])) and torch.equal(g2, gaze * torch.tensor([1.0, -1.0]))
     # mirror 0: nothing changes, though one draw per sample is made (the other draws stay where they were)
     g0, g1 = augment_generator(0, 0), augment_generator(0, 0)
-    e0, h0, z0, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.0), g0)
+    e0, h0, z0, _, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.0), g0)
     assert torch.equal(e0, eyes) and torch.equal(h0, head) and torch.equal(z0, gaze)
     torch.rand(4, generator=g1)
     assert torch.equal(torch.rand(3, generator=g0), torch.rand(3, generator=g1))
@@ -236,7 +236,7 @@ def test_mirror_swaps_flips_and_negates_the_yaws():
     # half of many samples, about
     big = _patches(2000, seed=5)
     yaws = torch.ones(1000, 2)
-    _, _, out, _ = mirror_samples(big, yaws, yaws, TrainAugment(mirror=0.5), augment_generator(1, 0))
+    _, _, out, _, _ = mirror_samples(big, yaws, yaws, TrainAugment(mirror=0.5), augment_generator(1, 0))
     assert 400 < int((out[:, 1] < 0).sum()) < 600 and bool((out[:, 0] == 1).all())
     with pytest.raises(GazeAugError, match="mirror"):
         TrainAugment(mirror=1.5)
@@ -434,7 +434,7 @@ def test_a_mirrored_sample_mirrors_its_face_patch_with_its_eyes():
     eyes = torch.from_numpy(rng.integers(0, 255, (32, 36, 60, 3), dtype=np.uint8))
     face = torch.from_numpy(rng.integers(0, 255, (16, 32, 40, 3), dtype=np.uint8))
     head, gaze = torch.zeros(16, 2), torch.full((16, 2), 0.25)
-    e, h, g, f = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.5), augment_generator(3, 0), face=face)
+    e, h, g, f, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.5), augment_generator(3, 0), face=face)
     flipped = (g[:, 1] < 0).numpy()  # a mirrored sample's yaw is negated
     assert flipped.any() and not flipped.all()
     cols = mirrored_columns(40)
@@ -443,7 +443,7 @@ def test_a_mirrored_sample_mirrors_its_face_patch_with_its_eyes():
         assert torch.equal(f[i], want)
         assert torch.equal(e[i], eyes[16 + i][:, mirrored_columns(60)] if flipped[i] else eyes[i])
     # without a face the eyes and labels are drawn and mirrored the same
-    e2, _, g2, none = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.5), augment_generator(3, 0))
+    e2, _, g2, none, _ = mirror_samples(eyes, head, gaze, TrainAugment(mirror=0.5), augment_generator(3, 0))
     assert none is None and torch.equal(e2, e) and torch.equal(g2, g)
 
 

@@ -161,7 +161,8 @@ def test_placeholder_batch_is_shaped_as_a_real_one(tmp_path, face, preload, augm
         assert (g.shape, g.dtype, g.stride(), g.device) == (w.shape, w.dtype, w.stride(), w.device), k
     want = train_inputs(real, cpu, augment, "rgb", augment_generator(0, 0))
     got = train_inputs(fake, cpu, augment, "rgb", torch.Generator())
-    assert (want[4] is None) is (got[4] is None) is (not face)
+    assert (want.face is None) is (got.face is None) is (not face)
+    assert want.eye_keypoints is None and got.eye_keypoints is None
     for w, g in zip(want, got, strict=True):
         if w is not None:
             assert (g.shape, g.dtype, g.stride()) == (w.shape, w.dtype, w.stride())
