@@ -392,7 +392,7 @@ def test_documented_h5_schema_is_the_written_one(tmp_path: Path) -> None:
     from gazeaug.cli import main
 
     assert main(["simulate", "--rig", "screen", "--per-face", "2", "-o", str(tmp_path / "sim"), "--quiet"]) == 0
-    out = tmp_path / "a.h5"  # with the one optional column, face
+    out = tmp_path / "a.h5"  # with the optional columns: face, and eye_keypoints (redirected eyes)
     args = [
         "augment",
         str(tmp_path / "sim"),
@@ -404,6 +404,9 @@ def test_documented_h5_schema_is_the_written_one(tmp_path: Path) -> None:
         "--face-patch",
         "16",
         "16",
+        "--rig",
+        "wheelchair",
+        "--redirect-eyes",
     ]
     assert main(args) == 0
     datasets: set[str] = set()
