@@ -731,6 +731,7 @@ class H5TrainingSet:
         self.path = Path(path)
         self._fingerprint: str | None = None
         self._patch_fingerprint: str | None = None
+        self._eye_keypoints: NDArray[np.float32] | None = None  # the whole column, read when first asked for
         f = open_h5_for_reading(self.path)
         with f, _reading(self.path):
             n, labels = _check_schema(f, self.path)
@@ -807,16 +808,19 @@ class H5TrainingSet:
     def eye_keypoints(self, *, every_row: bool = False) -> NDArray[np.float32]:
         """(K, 2, 2, 2) float32 px: the rows' ``eye_keypoints`` (schema), NaN where unknown.
 
-        ``every_row``: the file's N rows, not only the K in use.
+        ``every_row``: the file's N rows, not only the K in use. The column (32 bytes a row) is read
+        once, on the first call, and kept (as the labels are).
 
         Raises:
             GazeAugError: the file has none.
         """
         if not self.has_eye_keypoints:
             raise GazeAugError(f"{self.path}: no eye keypoints (made without augment --redirect-eyes)")
-        h5py = _import_h5py()
-        with h5py.File(self.path, "r") as f, _reading(self.path):
-            column = np.asarray(f["eye_keypoints"][()], dtype=np.float32)
+        if self._eye_keypoints is None:
+            h5py = _import_h5py()
+            with h5py.File(self.path, "r") as f, _reading(self.path):
+                self._eye_keypoints = np.asarray(f["eye_keypoints"][()], dtype=np.float32)
+        column = self._eye_keypoints
         return column if every_row else column[self.rows]
 
     def read(self, keys: Sequence[str] | None = None) -> dict[str, Any]:
@@ -883,7 +887,7 @@ class H5TrainingSet:
             "head_pose": self._labels[:, :2],
             "gaze": self._labels[:, 2:],
         }
-        if "eye_keypoints" in wanted:  # 32 bytes a row: read whole, once
+        if "eye_keypoints" in wanted:  # 32 bytes a row: read whole, once per set (eye_keypoints keeps it)
             in_memory["eye_keypoints"] = self.eye_keypoints(every_row=True)
         n_threads = read_threads() if threads is None else max(1, int(threads))
         pool_cm = ThreadPoolExecutor(n_threads, thread_name_prefix="gazeaug-inflate") if n_threads > 1 else _no_pool()

@@ -462,10 +462,7 @@ def _capture(model: Any, data: H5TrainingSet, batch_size: int, face: bool, devic
     torch = import_torch()
     model.train()
     batch = placeholder_batch(data, batch_size, face=face)
-    b = train_inputs(batch, device, s.augment, s.input_mode, torch.Generator(device))
-    return graph_model(
-        model, (b.left, b.right, b.head_pose) if b.face is None else (b.left, b.right, b.head_pose, b.face)
-    )
+    return graph_model(model, train_inputs(batch, device, s.augment, s.input_mode, torch.Generator(device)).model_args)
 
 
 def _evaluate_set(model: Any, data: H5TrainingSet, batch_size: int) -> float:
@@ -1127,12 +1124,9 @@ def _train(
                     n = len(tensors["gaze"])
                     t = train_inputs(tensors, device, s.augment, s.input_mode, gen)
                     y = t.gaze
-                    inputs = (
-                        (t.left, t.right, t.head_pose) if t.face is None else (t.left, t.right, t.head_pose, t.face)
-                    )
                     call = graphed if graphed is not None and n == batch_size else model
                     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=cuda, cache_enabled=False):
-                        pred = call(*inputs)
+                        pred = call(*t.model_args)
                         found = kp_head() if kp_head is not None else None  # (2B, K, 2): lefts, then rights
                     if call is graphed:
                         pred = pred.clone()  # the graph's output memory is overwritten by the next step

@@ -383,6 +383,15 @@ class TrainInputs(NamedTuple):
     face: Any
     eye_keypoints: Any
 
+    @property
+    def model_args(self) -> tuple[Any, ...]:
+        """The model's inputs: ``(left, right, head_pose)``, and ``face`` when the batch has one."""
+        return (
+            (self.left, self.right, self.head_pose)
+            if self.face is None
+            else (self.left, self.right, self.head_pose, self.face)
+        )
+
 
 def train_inputs(
     tensors: dict[str, Any], device: Any, augment: TrainAugment, input_mode: str, generator: Any
