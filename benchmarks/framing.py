@@ -83,12 +83,15 @@ def _eye_points_px(
     """Each row's true eye points in its patches: ``{"eyeball", "contour", "pupil"}`` -> (N, 2, 2) px.
 
     Axis 1 is the eye (left, right), axis 2 (x right, y down) from the patch's principal point,
-    as the normalized camera (focal length ``focal``, distance ``distance_mm``) sees them: ``C_n S R p``
-    with ``S`` scaling depth by ``distance_mm / ||contour centre||``. The eyeball centre is the record's; the contour's
+    as the normalized camera (focal length ``focal``, distance ``distance_mm``) sees them:
+    :meth:`gazeaug.camera.NormalizedCamera.project` (``C_n S R p``, ``S`` scaling depth by
+    ``distance_mm / ||contour centre||``). The eyeball centre is the record's; the contour's
     centre lies :func:`gazeaug.simulate.eyeball_depth_mm` in front of it along the head's -z; the
     pupil is the eyeball centre plus the subject's eyeball radius along the optical axis (the iris
     is painted on the sphere, its centre at the pole).
     """
+    from facemesh.geometry import nearest_rotation
+    from gazeaug.camera import NormalizedCamera
     from gazeaug.simulate import SimSettings, eyeball_depth_mm
 
     base_depth = float(settings.get("eyeball_depth_mm", SimSettings.eyeball_depth_mm))
@@ -106,10 +109,15 @@ def _eye_points_px(
                 "contour": centre - eyeball_depth_mm(base_depth, radius) * into_head,
                 "pupil": centre + radius * axis / np.linalg.norm(axis),
             }
-            scale = distance_mm / float(np.linalg.norm(found["contour"]))  # S: d_n / ||e||
+            camera = NormalizedCamera(  # the set stores R in float32: re-orthonormalized
+                rotation=nearest_rotation(d[f"R_norm_{side}"][i]),
+                reference_mm=found["contour"],
+                distance_mm=distance_mm,
+                focal_px=focal,
+                size_wh=(2, 2),  # principal point (1, 1), removed below
+            )
             for name, point in found.items():
-                v = d[f"R_norm_{side}"][i] @ point
-                out[name][i, e] = focal * v[:2] / (v[2] * scale)
+                out[name][i, e] = camera.project(point) - 1.0
     return out
 
 

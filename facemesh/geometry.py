@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["similarity_transform", "apply_similarity", "vertex_normals"]
+__all__ = ["similarity_transform", "apply_similarity", "nearest_rotation", "vertex_normals"]
 
 
 def similarity_transform(
@@ -39,6 +39,29 @@ def apply_similarity(points: ArrayLike, s: float, r: ArrayLike, t: ArrayLike) ->
     """``s * R @ p + t`` for each row p of an (N, 3) array."""
     p = np.asarray(points, dtype=np.float64)
     return s * p @ np.asarray(r, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+
+
+def nearest_rotation(matrix: ArrayLike) -> NDArray[np.float64]:
+    """The proper rotation closest to a (3, 3) matrix in the Frobenius norm: ``U diag(1, 1, det(U V^T)) V^T``.
+
+    For a rotation stored in float32 or printed rounded, whose rows are orthonormal only to the
+    stored precision; a matrix that is no rotation at all comes back as *some* rotation, so check
+    how far it was (``np.abs(m @ m.T - I).max()``) first where that matters.
+
+    Args:
+        matrix: (3, 3) float, finite.
+
+    Returns:
+        (3, 3) float64, ``R R^T = I``, ``det R = +1``.
+
+    Raises:
+        ValueError: not a finite (3, 3) matrix.
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        raise ValueError(f"nearest_rotation: expected a finite (3, 3) matrix, got shape {m.shape}")
+    u, _, vt = np.linalg.svd(m)
+    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
 
 
 def vertex_normals(

@@ -6,7 +6,7 @@ import pytest
 from facemesh import builtin_face_model, load_face_model
 from facemesh.face_models import EYE_CORNERS, export_obj, mirror_permutation
 from facemesh.face_models.triangulation import boundary_loops, edge_use_counts
-from facemesh.geometry import apply_similarity, similarity_transform
+from facemesh.geometry import apply_similarity, nearest_rotation, similarity_transform
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +29,20 @@ def test_similarity_transform_recovers_a_known_transform():
     assert s == pytest.approx(2.5)
     np.testing.assert_allclose(r2, r, atol=1e-12)
     np.testing.assert_allclose(t, [1.0, -2.0, 3.0], atol=1e-12)
+
+
+def test_nearest_rotation_by_hand():
+    th = np.radians(30.0)
+    r = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    # a rotation scaled keeps its rotation; one stored in float32 comes back orthonormal to float64
+    np.testing.assert_allclose(nearest_rotation(3.0 * r), r, atol=1e-12)
+    r32 = nearest_rotation(r.astype(np.float32))
+    assert np.abs(r32 @ r32.T - np.eye(3)).max() < 1e-12 and np.abs(r32 - r).max() < 1e-6
+    # diag(2, 1, -0.5) = U S V^T with U = diag(1, 1, -1), V = I: U V^T is a reflection, so the
+    # smallest singular direction flips and the nearest proper rotation is the identity
+    np.testing.assert_allclose(nearest_rotation(np.diag([2.0, 1.0, -0.5])), np.eye(3), atol=1e-12)
+    with pytest.raises(ValueError, match="finite"):
+        nearest_rotation(np.full((3, 3), np.nan))
 
 
 def test_builtin_model_shape(model):

@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 
 from facemesh.build import FaceFit
 from facemesh.face_models import KEYPOINTS
+from facemesh.geometry import nearest_rotation
 from facemesh.pose import project_points
 from facemesh.types import CameraIntrinsics, FaceLandmarks, FaceMesh, FaceModel, HeadPose
 
@@ -143,9 +144,7 @@ def _rotation(m: NDArray[np.float64], where: str) -> NDArray[np.float64]:
     r = m.reshape(3, 3)
     if not np.allclose(r @ r.T, np.eye(3), atol=1e-3) or np.linalg.det(r) < 0:
         raise DatasetError(f"{where}: expected a rotation matrix (orthonormal, det +1), got {np.round(r, 4).tolist()}")
-    # re-orthonormalise the printed (rounded) matrix
-    u, _, vt = np.linalg.svd(r)
-    return np.asarray(u @ vt, dtype=np.float64)
+    return nearest_rotation(r)  # the printed matrix is rounded
 
 
 def decompose_projection(
