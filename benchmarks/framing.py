@@ -114,10 +114,10 @@ def _eye_points_px(
                 reference_mm=found["contour"],
                 distance_mm=distance_mm,
                 focal_px=focal,
-                size_wh=(2, 2),  # principal point (1, 1), removed below
+                size_wh=(2, 2),  # any size: offsets from its principal point
             )
             for name, point in found.items():
-                out[name][i, e] = camera.project(point) - 1.0
+                out[name][i, e] = camera.project(point) - camera.camera_matrix[:2, 2]
     return out
 
 

@@ -27,10 +27,11 @@ def similarity_transform(
         raise ValueError(f"similarity_transform: expected two (N>=3, 3) arrays, got {a.shape} and {b.shape}")
     ma, mb = a.mean(axis=0), b.mean(axis=0)
     a0, b0 = a - ma, b - mb
-    u, sv, vt = np.linalg.svd(b0.T @ a0)
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
-    r = u @ d @ vt
-    s = float((sv * np.diag(d)).sum() / (a0**2).sum()) if with_scale else 1.0
+    cov = b0.T @ a0
+    r = nearest_rotation(cov)  # Kabsch: the rotation nearest the cross-covariance
+    s = (
+        float(np.trace(r.T @ cov) / (a0**2).sum()) if with_scale else 1.0
+    )  # trace(R^T C) = sum of signed singular values
     t = mb - s * r @ ma
     return s, r, t
 
