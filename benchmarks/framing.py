@@ -272,4 +272,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # nothing is written: the result is one line on stdout at the end
+        print("framing: interrupted", file=sys.stderr)
+        sys.exit(130)
