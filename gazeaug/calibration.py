@@ -113,6 +113,9 @@ class Calibration:
         points: how many points it was fitted on.
         error_deg: mean angular error over the points per kind, ``{"none": ..., "bias": ..., ...}``
             for the fit on all points (``fitted``) and left out (``left_out``).
+        mirror_average: how the model was read when the correction was fitted: True averaged with
+            the mirrored eyes, False plainly (``--mirror-average``); None in files written before
+            2026-12-01, which did not record it (the model file's own choice was used then).
     """
 
     kind: str
@@ -121,11 +124,36 @@ class Calibration:
     model_sha256: str
     points: int
     error_deg: dict[str, dict[str, float]]
+    mirror_average: bool | None = None
 
     def apply(self, pitchyaw: ArrayLike) -> NDArray[np.float64]:
         """(N, 2) or (2,) radians (pitch, yaw), face-centre normalized frame -> corrected, same shape."""
         g = np.asarray(pitchyaw, dtype=np.float64)
         return g @ np.asarray(self.matrix).T + np.asarray(self.offset)
+
+    def check_for(self, model_sha256: str | None = None, mirror_average: bool | None = None) -> None:
+        """Refuse a model this correction was not fitted for.
+
+        Args:
+            model_sha256: the model's :func:`model_digest`; None: not checked.
+            mirror_average: how the model is read now; None, or a file that does not record it
+                (before 2026-12-01): not checked.
+
+        Raises:
+            GazeAugError: fitted for another model file, or for the model read the other way (a
+                correction of the averaged answers is not one of the plain answers).
+        """
+        if model_sha256 is not None and self.model_sha256 != model_sha256:
+            raise GazeAugError(
+                f"this calibration was fitted for another model (sha256 {self.model_sha256[:12]}...) than the one "
+                f"given ({model_sha256[:12]}...): calibrate again with this model"
+            )
+        if mirror_average is not None and self.mirror_average is not None and self.mirror_average != mirror_average:
+            fitted, now = ("on" if v else "off" for v in (self.mirror_average, mirror_average))
+            raise GazeAugError(
+                f"this calibration was fitted with the model's mirror averaging {fitted}, and the model is read "
+                f"now with it {now}: give --mirror-average {fitted}, or calibrate again"
+            )
 
     def as_dict(self) -> dict[str, Any]:
         """The file's content."""
@@ -141,7 +169,14 @@ class Calibration:
         return p
 
 
-def fit_calibration(pred: ArrayLike, true: ArrayLike, point: ArrayLike, model_sha256: str) -> Calibration:
+def fit_calibration(
+    pred: ArrayLike,
+    true: ArrayLike,
+    point: ArrayLike,
+    model_sha256: str,
+    *,
+    mirror_average: bool | None = None,
+) -> Calibration:
     """Fit the per-user correction (module docstring).
 
     Args:
@@ -149,6 +184,7 @@ def fit_calibration(pred: ArrayLike, true: ArrayLike, point: ArrayLike, model_sh
         true: (N, 2) radians, the true gaze in the same frames.
         point: (N,) which point each sample belongs to (any hashable labels).
         model_sha256: the model's :func:`model_digest`.
+        mirror_average: how the model that gave ``pred`` was read (:attr:`Calibration.mirror_average`).
 
     Raises:
         GazeAugError: fewer than 2 points, or mismatched shapes.
@@ -189,14 +225,22 @@ def fit_calibration(pred: ArrayLike, true: ArrayLike, point: ArrayLike, model_sh
         model_sha256=model_sha256,
         points=len(labels),
         error_deg={"fitted": fitted, "left_out": left_out},
+        mirror_average=mirror_average,
     )
 
 
-def load_calibration(path: str | Path, model_sha256: str | None = None) -> Calibration:
+def load_calibration(
+    path: str | Path, model_sha256: str | None = None, *, mirror_average: bool | None = None
+) -> Calibration:
     """Read a calibration file; with ``model_sha256``, refuse one fitted for another model.
 
+    With ``mirror_average`` (how the model is read now), refuse a file fitted on the model read the
+    other way (a correction of the averaged answers is not one of the plain answers); a file that
+    does not record it (written before 2026-12-01) is taken as it is.
+
     Raises:
-        GazeAugError: unreadable, not a calibration, bad values, or for another model.
+        GazeAugError: unreadable, not a calibration, bad values, for another model, or for the
+            model read the other way.
     """
     p = Path(path)
     try:
@@ -211,11 +255,10 @@ def load_calibration(path: str | Path, model_sha256: str | None = None) -> Calib
         cal = _from_record(data)
     except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise GazeAugError(f"{p}: bad calibration values ({exc})") from exc
-    if model_sha256 is not None and cal.model_sha256 != model_sha256:
-        raise GazeAugError(
-            f"{p}: this calibration was fitted for another model (sha256 {cal.model_sha256[:12]}...); "
-            f"the model given is {model_sha256[:12]}...: calibrate again with this model"
-        )
+    try:
+        cal.check_for(model_sha256, mirror_average)
+    except GazeAugError as exc:
+        raise GazeAugError(f"{p}: {exc}") from None
     return cal
 
 
@@ -260,7 +303,15 @@ def _from_record(data: dict[str, Any]) -> Calibration:
         model_sha256=digest,
         points=int(points) if isinstance(points, int) and not isinstance(points, bool) else 0,
         error_deg=dict(data.get("error_deg") or {}) if isinstance(data.get("error_deg"), dict) else {},
+        mirror_average=_mirror_record(data.get("mirror_average")),
     )
+
+
+def _mirror_record(value: Any) -> bool | None:
+    """A file's ``mirror_average``: true, false, or absent / null (files before 2026-12-01)."""
+    if value is None or isinstance(value, bool):
+        return value
+    raise ValueError(f"mirror_average: expected true, false or null, got {value!r}")
 
 
 def _targets_csv(path: Path, rig: Any) -> list[tuple[float, float, NDArray[np.float64]]]:
@@ -408,7 +459,7 @@ def calibrate(
     ids = np.array([s[0] for s in samples])
     pred = np.stack([s[1] for s in samples])
     true = np.stack([s[2] for s in samples])
-    cal = fit_calibration(pred, true, ids, model_digest(estimator.path))
+    cal = fit_calibration(pred, true, ids, model_digest(estimator.path), mirror_average=estimator.mirror_average)
     after = _errors_deg(cal.apply(pred), true)
     before = _errors_deg(pred, true)
     report = {
@@ -418,5 +469,6 @@ def calibrate(
         "frames": summary["frames"],
         "error_deg": cal.error_deg,
         "samples_error_deg": {"before": round(float(before.mean()), 3), "after": round(float(after.mean()), 3)},
+        "mirror_average": cal.mirror_average,
     }
     return cal, report

@@ -501,6 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--calibration", type=Path, default=None, help="the user's calibration for this model (gazeaug calibrate)"
     )
     tk.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_mirror_option(tk)
 
     cb = sub.add_parser(
         "calibrate",
@@ -527,6 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--settle", type=finite_float, default=0.3, help="seconds left out at the start of each look (default 0.3)"
     )
     cb.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_mirror_option(cb)
 
     ex = sub.add_parser("export", help="export a model to ONNX")
     ex.add_argument("model", type=Path, help="model file (.pt from gazeaug train)")
@@ -1188,12 +1190,12 @@ def _cmd_track(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig) if args.rig is not None else None
     camera = _frames_camera(args.camera)
     model = _model_or_demo(args.model)
-    estimator = load_estimator(model)
+    estimator = load_estimator(model, mirror_average=_mirror_choice(args))
     calibration = None
     if args.calibration is not None:
         from .calibration import load_calibration, model_digest
 
-        calibration = load_calibration(args.calibration, model_digest(model))
+        calibration = load_calibration(args.calibration, model_digest(model), mirror_average=estimator.mirror_average)
     summary = track(
         args.source,
         args.output,
@@ -1231,7 +1233,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
     rig = load_rig(args.rig) if args.rig is not None else None
     camera = _frames_camera(args.camera)
-    estimator = load_estimator(_model_or_demo(args.model))
+    estimator = load_estimator(_model_or_demo(args.model), mirror_average=_mirror_choice(args))
     cal, report = calibrate(
         args.source,
         estimator,

@@ -743,20 +743,17 @@ def track(
 
     Raises:
         GazeAugError: a source that does not open, a camera for another frame size (nothing is
-            written then, and older outputs stay), a calibration fitted for another model file.
+            written then, and older outputs stay), a calibration fitted for another model file or
+            for the model read the other way (:meth:`gazeaug.calibration.Calibration.check_for`).
         KeyboardInterrupt: after the outputs were closed and moved in place (complete up to the last frame).
     """
     from .sequence import read_truth, sequence_accuracy
 
     s = settings
-    if calibration is not None:  # tied to a model file's bytes (gazeaug.calibration.model_digest)
+    if calibration is not None:  # tied to a model file's bytes and to how it is read
         from .calibration import model_digest
 
-        if calibration.model_sha256 != model_digest(estimator.path):
-            raise GazeAugError(
-                f"the calibration was fitted for another model (sha256 {calibration.model_sha256[:12]}...) than "
-                f"{estimator.path}: calibrate again with this model"
-            )
+        calibration.check_for(model_digest(estimator.path), estimator.mirror_average)
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
     if s.folder_fps is not None and src.kind not in ("folder", "image"):
@@ -894,6 +891,7 @@ def track(
         "camera": cam.source if cam is not None else None,
         "model": str(estimator.path),
         "model_kind": estimator.kind,
+        "mirror_average": estimator.mirror_average,
         "smoothing": s.smoothing is not None,
         "calibration": calibration.kind if calibration is not None else None,
         "rig": rig.name if with_rig else None,

@@ -107,12 +107,39 @@ def test_calibration_file_round_trip_and_refusals(tmp_path):
         (tmp_path / "bad.json").write_text(json.dumps({**good, **change}))
         with pytest.raises(GazeAugError, match=message):
             load_calibration(tmp_path / "bad.json")
+    (tmp_path / "mirror.json").write_text(json.dumps({**good, "mirror_average": "yes"}))
+    with pytest.raises(GazeAugError, match="mirror_average: expected true, false or null"):
+        load_calibration(tmp_path / "mirror.json")
     (tmp_path / "other.json").write_text("[]")
     with pytest.raises(GazeAugError, match="not a gazeaug calibration"):
         load_calibration(tmp_path / "other.json")
     (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)  # deeper than Python's JSON reader goes
     with pytest.raises(GazeAugError, match="not a readable calibration file"):
         load_calibration(tmp_path / "deep.json")
+
+
+def test_calibration_records_how_the_model_was_read(tmp_path):
+    """A correction fitted on the averaged answers is refused for the plain ones, and the other way."""
+    pred, ids = np.array([[0.0, 0.0], [0.1, 0.2]]), np.arange(2)
+    on = fit_calibration(pred, pred + 0.01, ids, "ab" * 32, mirror_average=True)
+    assert on.mirror_average is True
+    p = on.save(tmp_path / "on.json")
+    assert json.loads(p.read_text())["mirror_average"] is True
+    assert load_calibration(p, "ab" * 32, mirror_average=True) == on
+    assert load_calibration(p, "ab" * 32) == on  # not asked: not checked
+    with pytest.raises(
+        GazeAugError, match=r"on\.json: .*mirror averaging on, .* now with it off: give --mirror-average on"
+    ):
+        load_calibration(p, "ab" * 32, mirror_average=False)
+    off = fit_calibration(pred, pred, ids, "ab" * 32, mirror_average=False)
+    with pytest.raises(GazeAugError, match="averaging off, .* with it on: give --mirror-average off"):
+        off.check_for("ab" * 32, True)
+    # a file written before the field existed: taken as it is, whichever way the model is read
+    old = json.loads(p.read_text())
+    del old["mirror_average"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    for way in (True, False):
+        assert load_calibration(tmp_path / "old.json", "ab" * 32, mirror_average=way).mirror_average is None
 
 
 def test_sequence_settings_checks():
@@ -237,6 +264,15 @@ def test_track_scores_a_sequence_and_calibrate(model, sequence, tmp_path, capsys
     out, err = capsys.readouterr()
     assert code == 0, err
     assert json.loads(out.strip().splitlines()[-1])["calibration"] == report["kind"]
+    # fitted on the model as its file says (mirror averaging on): refused for it read plainly
+    assert report["mirror_average"] is True
+    code = main(
+        ["track", str(sequence), "-o", str(tmp_path / "t5"), "--model", str(model), "--rig", str(RIG), "--quiet"]
+        + ["--calibration", str(tmp_path / "u.json"), "--no-video", "--mirror-average", "off"]
+    )
+    out, err = capsys.readouterr()
+    assert code == 2 and "give --mirror-average on" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "t5").exists()
     other = tmp_path / "other.pt"
     other.write_bytes(model.read_bytes() + b"\0")
     code = main(
