@@ -28,6 +28,8 @@ from facemesh.cli import (
 )
 from facemesh.cli import integer_in as _integer
 
+from .train_augment import STRENGTHS as AUGMENT_NAMES  # numpy only: no torch at start-up
+
 __all__ = ["main", "entry", "build_parser"]
 
 
@@ -987,6 +989,14 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         "on by default, see docs/model.md)",
     )
     p.add_argument(
+        "--augment",
+        action="append",
+        default=None,
+        metavar="NAME=VALUE",
+        help="one strength of the training-time augmentation, again for each (e.g. mirror=0.5 scale=0.15): "
+        f"{', '.join(AUGMENT_NAMES)}; 0 turns one off (defaults and ranges: docs/model.md)",
+    )
+    p.add_argument(
         "--input",
         default="rgb",
         metavar="{rgb,grey_equalized}",
@@ -1021,12 +1031,41 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
-    """The TrainSettings keywords of :func:`_add_train_input_options` (checked by TrainSettings)."""
+def _augment_settings(pairs: list[str] | None, enabled: bool) -> Any:
+    """The :class:`~gazeaug.train_augment.TrainAugment` of ``--augment NAME=VALUE`` (each once) and ``--no-augment``.
+
+    Raises:
+        GazeAugError: an unknown name, a name given twice, a value that is not a number (its range is
+            :class:`~gazeaug.train_augment.TrainAugment`'s to check), or strengths with ``--no-augment``.
+    """
+    from .errors import GazeAugError
     from .train_augment import TrainAugment
 
+    strengths: dict[str, float | int] = {}
+    for pair in pairs or []:
+        name, sep, text = pair.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or name not in AUGMENT_NAMES:
+            raise GazeAugError(f"--augment {pair!r}: expected NAME=VALUE, NAME one of {', '.join(AUGMENT_NAMES)}")
+        if name in strengths:
+            raise GazeAugError(f"--augment {name}: given twice")
+        try:
+            value = float(text)
+        except ValueError:
+            raise GazeAugError(f"--augment {name}: expected a number, got {text.strip()!r}") from None
+        strengths[name] = int(value) if name == "shift_px" and value.is_integer() else value
+    if strengths and not enabled:
+        raise GazeAugError("--augment and --no-augment: give one or the other")
+    try:
+        return TrainAugment(enabled=enabled, **strengths)  # type: ignore[arg-type]  # it checks each value
+    except GazeAugError as exc:
+        raise GazeAugError(f"--augment {exc}") from None
+
+
+def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """The TrainSettings keywords of :func:`_add_train_input_options` (checked by TrainSettings)."""
     return {
-        "augment": TrainAugment(enabled=not args.no_augment),
+        "augment": _augment_settings(args.augment, not args.no_augment),
         "input_mode": args.input,
         "mirror_average": not args.no_mirror_average,
         "shift_average_px": args.shift_average,

@@ -62,7 +62,7 @@ changes) comes after it, as at inference.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -72,6 +72,7 @@ from .models import import_torch
 from .models.preprocess import eyes_to_float
 
 __all__ = [
+    "STRENGTHS",
     "TrainAugment",
     "augment_eyes",
     "augment_eyes_and_points",
@@ -163,6 +164,11 @@ class TrainAugment:
             object.__setattr__(self, name, float(v))  # plain numbers: model files record them
         object.__setattr__(self, "shift_px", int(self.shift_px))
         object.__setattr__(self, "enabled", bool(self.enabled))
+
+
+#: The names of :class:`TrainAugment`'s strengths, in its order (every field but ``enabled``):
+#: what ``gazeaug train --augment NAME=VALUE`` sets.
+STRENGTHS: tuple[str, ...] = tuple(f.name for f in fields(TrainAugment) if f.name != "enabled")
 
 
 def augment_generator(seed: int, epoch: int, device: Any = "cpu") -> Any:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
@@ -610,3 +610,33 @@ def test_head_pose_jitter_reaches_the_model_input_not_the_label():
     assert torch.equal(plain[0], jit[0]) and torch.equal(plain[1], jit[1])  # the patches drawn as before
     assert torch.equal(plain[3], jit[3]) and torch.equal(jit[3], torch.full((8, 2), 0.2))  # labels untouched
     assert torch.equal(plain[2], torch.zeros((8, 2))) and float(jit[2].abs().min()) > 0
+
+
+def test_augment_strengths_from_the_command_line(tmp_path, capsys):
+    """``--augment NAME=VALUE`` sets TrainAugment's strengths, recorded in the model; bad ones exit 2 in one line."""
+    from dataclasses import fields
+
+    from gazeaug.train_augment import STRENGTHS
+
+    assert set(STRENGTHS) == {f.name for f in fields(TrainAugment)} - {"enabled"}
+    h5 = synthetic_h5(tmp_path / "t.h5", n=32)
+    args = ["train", str(h5), "-o", str(tmp_path / "m.pt"), "--epochs", "1", "--batch-size", "16", "--quiet"]
+    assert main([*args, "--augment", "mirror=0.5", "--augment", "shift_px=4", "--augment", "head-pose-deg=2"]) == 0
+    recorded = torch.load(tmp_path / "m.pt", weights_only=True)["train_settings"]["augment"]
+    assert recorded == {**asdict(TrainAugment()), "mirror": 0.5, "shift_px": 4, "head_pose_deg": 2.0}
+    capsys.readouterr()
+    for extra, message in [
+        (["--augment", "mirror=1.5"], "--augment mirror: expected a number in [0, 1], got 1.5"),
+        (["--augment", "shift_px=2.5"], "--augment shift_px: expected an integer in [0, 16] pixels, got 2.5"),
+        (["--augment", "mirror=nan"], "--augment mirror: expected a number in [0, 1], got nan"),
+        (["--augment", "mirror=half"], "--augment mirror: expected a number, got 'half'"),
+        (["--augment", "mirrors=1"], "--augment 'mirrors=1': expected NAME=VALUE, NAME one of shift_px,"),
+        (["--augment", "enabled=0"], "--augment 'enabled=0': expected NAME=VALUE"),
+        (["--augment", "mirror=0.1", "--augment", "mirror=0.2"], "--augment mirror: given twice"),
+        (["--augment", "mirror=0.1", "--no-augment"], "--augment and --no-augment: give one or the other"),
+    ]:
+        out = tmp_path / "bad.pt"
+        assert main([*args[:2], "-o", str(out), *args[4:], *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, (extra, err)
+        assert not out.exists()
