@@ -1,7 +1,7 @@
 """How far test-time normalization's framing moves an eye in its patch, on simulated people.
 
 ``python benchmarks/framing.py SIMULATED_DIR NORMALIZED.h5 [--focal F] [--reference contour|eyeball]
-[--reading] [--model M.pt]``
+[--reading] [--classical] [--model M.pt]``
 
 ``SIMULATED_DIR`` is a ``gazeaug simulate`` output (``simulation.jsonl`` holds
 each image's true eyeball centres, mm, camera frame, its head rotation and
@@ -40,6 +40,12 @@ subject's kappa and eyeball radius, and the linear map), and the pupil from the 
 reader that finds the pupil exactly but takes the framing of normalization, from the landmarks and
 PnP, as the contour's place). Both are true points from ``simulation.jsonl``, not detections.
 
+With ``--classical``, each eye's iris centre is also found in its patch by two classical finders
+that learn nothing from people (:func:`iris_by_gradients`, Timm and Barth's means of gradients;
+:func:`iris_by_circles`, Daugman's integro-differential operator on the limbus's lower and side
+arcs), compared with the true pupil (px), and read linearly as above: from the true contour centre
+(the finder's pupil against a perfect opening centre) and from the patch centre.
+
 With ``--model``, the model is also evaluated on the patches re-framed by
 these offsets (a sub-pixel translation, edges replicated): as normalized,
 with each image's deviation from its subject's median removed, and with
@@ -50,7 +56,8 @@ Prints one JSON line: percentiles of the distance (px) and the standard
 deviation per axis, both eyes pooled, each subject's median offset (the part
 the subject's median removes), and with ``--model`` the mean error (deg) and
 Pearson's r of pitch and yaw for each framing; with ``--reading``, the two readings' mean
-error (deg), Pearson's r and the best constant guess (deg).
+error (deg), Pearson's r and the best constant guess (deg); with ``--classical``, each finder's
+distance from the true pupil (median, 90th percentile, mean miss per axis, px) and its two readings.
 """
 
 from __future__ import annotations
@@ -154,6 +161,125 @@ def _geometric_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
     return out
 
 
+def _subpixel_peak(score: np.ndarray) -> tuple[float, float]:
+    """(x, y) of ``score``'s maximum, in its cells, refined by a parabola through each axis's neighbours."""
+    iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+    found = [float(ix), float(iy)]
+    for axis, (i, line) in enumerate(((ix, score[iy, :]), (iy, score[:, ix]))):
+        if 0 < i < len(line) - 1:
+            a, b, c = (float(v) for v in line[i - 1 : i + 2])
+            curve = a - 2.0 * b + c
+            if curve < 0.0:
+                found[axis] += float(np.clip(0.5 * (a - c) / curve, -0.5, 0.5))
+    return found[0], found[1]
+
+
+def iris_by_gradients(grey: np.ndarray, box_px: tuple[int, int] = (14, 9), reach_px: float = 8.0) -> np.ndarray:
+    """The iris centre by means of gradients (Timm and Barth 2011), darkness-weighted.
+
+    Convention: ``grey`` (H, W), any numeric dtype, grey levels; returns (2,) float64 (x right, y
+    down) px from the patch's principal point ``(W / 2, H / 2)``, pixel centres at whole numbers.
+    The candidates lie within ``box_px`` (half-width, half-height) of the principal point (the eye
+    is framed there within a few px); each scores the mean of ``max(0, d . g)^2`` over the strong
+    gradients ``g`` (unit; magnitude above its mean + 0.3 sd) within ``reach_px`` of it, ``d`` the
+    unit vector from the candidate, times the darkness there (``255`` minus the grey blurred by 2 px).
+    Searched on the patch enlarged 2 x (bicubic), then refined by a parabola.
+    """
+    import cv2
+
+    up = 2
+    big = cv2.resize(np.asarray(grey, np.float32), None, fx=up, fy=up, interpolation=cv2.INTER_CUBIC)
+    soft = cv2.GaussianBlur(big, (0, 0), 1.0 * up)
+    gx = cv2.Sobel(soft, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(soft, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.hypot(gx, gy)
+    ys, xs = np.nonzero(mag > mag.mean() + 0.3 * mag.std())
+    ux, uy = gx[ys, xs] / mag[ys, xs], gy[ys, xs] / mag[ys, xs]
+    h, w = big.shape
+    # the enlarged patch's pixel j covers the patch's (j + 0.5) / up - 0.5; its principal point sits at w / 2
+    cols = np.arange(w)[np.abs((np.arange(w) + 0.5) / up - 0.5 - w / (2 * up)) <= box_px[0]]
+    rows = np.arange(h)[np.abs((np.arange(h) + 0.5) / up - 0.5 - h / (2 * up)) <= box_px[1]]
+    cy, cx = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+    dx, dy = xs[None, :] - cx[:, None], ys[None, :] - cy[:, None]
+    dist = np.hypot(dx, dy)
+    near = (dist > 0) & (dist < reach_px * up)
+    dot = np.maximum(np.where(near, (dx * ux + dy * uy) / np.maximum(dist, 1e-6), 0.0), 0.0)
+    score = (dot**2).sum(axis=1) / np.maximum(near.sum(axis=1), 1)
+    score = score * (255.0 - cv2.GaussianBlur(big, (0, 0), 2.0 * up))[cy, cx]
+    x, y = _subpixel_peak(score.reshape(len(rows), len(cols)))
+    return np.array([(cols[0] + x + 0.5) / up - 0.5 - w / (2 * up), (rows[0] + y + 0.5) / up - 0.5 - h / (2 * up)])
+
+
+def iris_by_circles(
+    grey: np.ndarray, box_px: tuple[int, int] = (14, 9), radii_px: tuple[float, float] = (4.0, 8.5)
+) -> np.ndarray:
+    """The iris centre by an integro-differential operator (Daugman's) on the limbus's lower and side arcs.
+
+    Convention: as :func:`iris_by_gradients` (returns (2,) px from the principal point). Each
+    candidate on a quarter-pixel grid within ``box_px`` of the principal point takes the mean grey
+    level on arcs of radius ``radii_px`` (every 0.5 px; the two sides within 35 deg of the horizontal
+    and the bottom within 30 deg of the vertical: the upper lid covers the top), on the patch blurred
+    by 0.7 px; it scores the largest rise of that mean from one radius to the next (the dark iris
+    inside the bright sclera), smoothed over three radii; the best candidate is refined by a parabola.
+    """
+    import cv2
+
+    g = cv2.GaussianBlur(np.asarray(grey, np.float32), (0, 0), 0.7)
+    h, w = g.shape
+    step = 0.25
+    xs = w / 2.0 + np.arange(-box_px[0], box_px[0] + step / 2, step)
+    ys = h / 2.0 + np.arange(-box_px[1], box_px[1] + step / 2, step)
+    cy, cx = (a.ravel() for a in np.meshgrid(ys, xs, indexing="ij"))
+    angles = np.deg2rad(np.r_[np.linspace(-35, 35, 15), np.linspace(145, 215, 15), np.linspace(60, 120, 9)])
+    means = []
+    for r in np.arange(radii_px[0], radii_px[1] + 0.25, 0.5):
+        mx = (cx[:, None] + r * np.cos(angles)[None]).astype(np.float32)
+        my = (cy[:, None] + r * np.sin(angles)[None]).astype(np.float32)  # y down: +sin is below
+        means.append(cv2.remap(g, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).mean(axis=1))
+    rise = np.diff(np.stack(means, axis=1), axis=1).astype(np.float32)
+    rise = cv2.GaussianBlur(rise, (3, 1), 0)  # over radii (the columns)
+    x, y = _subpixel_peak(rise.max(axis=1).reshape(len(ys), len(xs)))
+    return np.array([xs[0] + x * step - w / 2.0, ys[0] + y * step - h / 2.0])
+
+
+def _classical_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
+    """``--classical``: each finder's iris centres against the true pupil, and the linear readings from them."""
+    import cv2
+
+    from gazeaug.metrics import mean_error_deg, pearson
+
+    gaze = d["gaze"].astype(np.float64)
+    n = len(gaze)
+    out: dict = {}
+    for name, finder in (("gradients", iris_by_gradients), ("circles", iris_by_circles)):
+        found = np.stack(
+            [
+                [finder(cv2.cvtColor(patch, cv2.COLOR_RGB2GRAY)) for patch in d[f"{side}_eye"]]
+                for side in ("left", "right")
+            ],
+            axis=1,
+        )  # (N, 2 eyes, 2)
+        miss = found - points["pupil"]
+        dist = np.hypot(miss[..., 0], miss[..., 1]).ravel()
+        row: dict = {
+            "median_px": round(float(np.median(dist)), 2),
+            "p90_px": round(float(np.percentile(dist, 90)), 2),
+            "mean_miss_px_xy": [round(float(v), 2) for v in miss.reshape(-1, 2).mean(axis=0)],
+        }
+        for reading, feature in (("from_true_contour", found - points["contour"]), ("from_patch_centre", found)):
+            pred = _leave_one_subject_out(
+                np.c_[feature.reshape(n, 4), d["head_pose"].astype(np.float64)], gaze, subjects
+            )
+            r = pearson(pred, gaze)
+            row[reading] = {
+                "error_deg": round(mean_error_deg(pred, gaze), 2),
+                "r_pitch": round(float(r[0]), 3),
+                "r_yaw": round(float(r[1]), 3),
+            }
+        out[name] = row
+    return out
+
+
 def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviations: np.ndarray) -> dict:
     from gazeaug.metrics import mean_error_deg, pearson
     from gazeaug.train import load_model, predict_arrays
@@ -201,6 +327,11 @@ def main() -> int:
         action="store_true",
         help="also fit a linear reading of the gaze from the true pupil and contour centres (leave one subject out)",
     )
+    ap.add_argument(
+        "--classical",
+        action="store_true",
+        help="also find each iris centre classically (gradients, circles) and read the gaze from it linearly",
+    )
     ap.add_argument("--model", type=Path, default=None, help="a model (.pt) to evaluate under each framing")
     args = ap.parse_args()
     if not (args.simulated / "simulation.jsonl").is_file():
@@ -223,9 +354,9 @@ def main() -> int:
         print(f"{args.model}: no such model file", file=sys.stderr)
         return 2
     keys = ["R_norm_left", "R_norm_right", "source_index"]
-    if args.model is not None:
+    if args.model is not None or args.classical:
         keys += ["left_eye", "right_eye"]
-    if args.model is not None or args.reading:
+    if args.model is not None or args.reading or args.classical:
         keys += ["head_pose", "gaze"]
     try:
         ts = H5TrainingSet(args.normalized)
@@ -261,6 +392,8 @@ def main() -> int:
     }
     if args.reading:
         result["reading"] = _geometric_reading(points, d, subjects)
+    if args.classical:
+        result["classical"] = _classical_reading(points, d, subjects)
     if args.model is not None:
         try:
             result["model"] = _model_under_framings(args.model, d, off, dev)

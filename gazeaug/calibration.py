@@ -459,7 +459,7 @@ def calibrate(
     ids = np.array([s[0] for s in samples])
     pred = np.stack([s[1] for s in samples])
     true = np.stack([s[2] for s in samples])
-    cal = fit_calibration(pred, true, ids, model_digest(estimator.path), mirror_average=estimator.mirror_average)
+    cal = fit_calibration(pred, true, ids, estimator.model_sha256, mirror_average=estimator.mirror_average)
     after = _errors_deg(cal.apply(pred), true)
     before = _errors_deg(pred, true)
     report = {

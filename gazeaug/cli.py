@@ -244,7 +244,6 @@ def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     from .datasets import DATASETS
     from .experiment import BUILTIN_TEST_RIG
-    from .models import MODELS
     from .render import RENDERERS
     from .selection import MAX_DWELL_S, MAX_MARGIN_DEG
     from .train_data import PRELOAD_CHOICES
@@ -387,15 +386,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--lr", type=finite_float, default=None, help=LR_HELP)
     t.add_argument(
-        "--keypoint-loss",
-        type=finite_float,
-        default=0.0,
-        metavar="W",
-        help="also teach the eye encoder where each eye's iris centre and opening centre lie (the set's "
-        "eye_keypoints, written by augment --redirect-eyes), weight W, 0 to 100 (default 0: off); the model "
-        "file is the same network either way (docs/model.md)",
-    )
-    t.add_argument(
         "--seed", type=_seed, default=0, help="seeds the weights, the shuffling and the augmentation (default 0)"
     )
     t.add_argument(
@@ -403,12 +393,6 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("auto", "cpu", "cuda"),
         default="auto",
         help="where to train; auto: CUDA when present, else the CPU (default auto)",
-    )
-    t.add_argument(
-        "--model",
-        choices=MODELS.names(),
-        default="mobilenet_gaze",
-        help="the gaze model's architecture, a registered name (default mobilenet_gaze)",
     )
     _add_train_input_options(t)
     t.add_argument(
@@ -982,6 +966,23 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
 
 def _add_train_input_options(p: argparse.ArgumentParser) -> None:
     """The training options of ``train`` and ``experiment`` (read by :func:`_train_input_settings`)."""
+    from .models import MODELS
+
+    p.add_argument(
+        "--model",
+        choices=MODELS.names(),
+        default="mobilenet_gaze",
+        help="the gaze model's architecture, a registered name (default mobilenet_gaze)",
+    )
+    p.add_argument(
+        "--keypoint-loss",
+        type=finite_float,
+        default=0.0,
+        metavar="W",
+        help="also teach the eye encoder where each eye's iris centre and opening centre lie (the set's "
+        "eye_keypoints, written by augment --redirect-eyes), weight W, 0 to 100 (default 0: off); the model "
+        "file is the same network either way; in experiment the augmented model's alone (docs/model.md)",
+    )
     p.add_argument(
         "--no-augment",
         action="store_true",
@@ -1065,6 +1066,8 @@ def _augment_settings(pairs: list[str] | None, enabled: bool) -> Any:
 def _train_input_settings(args: argparse.Namespace) -> dict[str, Any]:
     """The TrainSettings keywords of :func:`_add_train_input_options` (checked by TrainSettings)."""
     return {
+        "model": args.model,
+        "keypoint_loss_weight": args.keypoint_loss,
         "augment": _augment_settings(args.augment, not args.no_augment),
         "input_mode": args.input,
         "mirror_average": not args.no_mirror_average,
@@ -1078,14 +1081,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from .train import TrainSettings, train
 
     settings = TrainSettings(
-        model=args.model,
         epochs=args.epochs,
         batch_size=args.batch_size,
         auto_samples=TrainSettings.auto_samples if args.samples is None else args.samples,
         lr=TrainSettings.lr if args.lr is None else args.lr,
         seed=args.seed,
         device=args.device,
-        keypoint_loss_weight=args.keypoint_loss,
         **_train_input_settings(args),
     )
     log = train(
@@ -1232,9 +1233,11 @@ def _cmd_track(args: argparse.Namespace) -> int:
     estimator = load_estimator(model, mirror_average=_mirror_choice(args))
     calibration = None
     if args.calibration is not None:
-        from .calibration import load_calibration, model_digest
+        from .calibration import load_calibration
 
-        calibration = load_calibration(args.calibration, model_digest(model), mirror_average=estimator.mirror_average)
+        calibration = load_calibration(
+            args.calibration, estimator.model_sha256, mirror_average=estimator.mirror_average
+        )
     summary = track(
         args.source,
         args.output,

@@ -18,6 +18,7 @@ as a fourth input; its ``normalization`` makes one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,16 @@ class GazeEstimator:
     input_mode: str
     meta: dict[str, Any]
     _runner: Any
+    _sha256: str
+
+    @property
+    def model_sha256(self) -> str:
+        """SHA-256 (hex) of the model file's bytes as this estimator read them (what a calibration is tied to).
+
+        The digest of the very bytes the model was built from, so a file replaced after loading
+        cannot pass for the one loaded (:func:`gazeaug.calibration.model_digest` reads the file again).
+        """
+        return self._sha256
 
     @property
     def mirror_average(self) -> bool:
@@ -144,7 +155,7 @@ def load_estimator(path: str | Path, device: str = "cpu", *, mirror_average: boo
             ``mirror_average`` an ONNX graph does not do.
         ImportError: ``.onnx`` without ONNX Runtime installed (:data:`ONNX_INSTALL_HINT`).
     """
-    from .train import check_mirror_average, load_model
+    from .train import FILE_SHA256_KEY, check_mirror_average, load_model
 
     p = Path(path)
     mirror_average = check_mirror_average(mirror_average)
@@ -161,7 +172,7 @@ def load_estimator(path: str | Path, device: str = "cpu", *, mirror_average: boo
 
     model, meta = load_model(p, device=device, mirror_average=mirror_average)
     norm = settings_from_meta(meta)  # without a face patch unless the model reads one: test time samples that
-    return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model)
+    return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model, str(meta[FILE_SHA256_KEY]))
 
 
 def _load_onnx(p: Path) -> GazeEstimator:
@@ -173,6 +184,10 @@ def _load_onnx(p: Path) -> GazeEstimator:
         raise ImportError(ONNX_INSTALL_HINT) from exc
     if not p.is_file():
         raise GazeAugError(f"{p}: no such model file")
+    try:  # read once: the session is built from the very bytes the digest is of
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise GazeAugError(f"{p}: cannot read the model file ({exc.strerror or exc.__class__.__name__})") from exc
     try:
         opts = ort.SessionOptions()
         opts.log_severity_level = 3
@@ -181,7 +196,7 @@ def _load_onnx(p: Path) -> GazeEstimator:
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        session = ort.InferenceSession(str(p), sess_options=opts, providers=["CPUExecutionProvider"])
+        session = ort.InferenceSession(raw, sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
         raise GazeAugError(f"{p}: not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from exc
     props = dict(session.get_modelmeta().custom_metadata_map)
@@ -214,4 +229,4 @@ def _load_onnx(p: Path) -> GazeEstimator:
                 f"{p}: the model takes {inp.name} of shape {inp.shape[1:]}, its metadata name "
                 f"{want[2]}x{want[1]} patches (expected {want})"
             )
-    return GazeEstimator(p, "onnx", norm, mode, props, session)
+    return GazeEstimator(p, "onnx", norm, mode, props, session, hashlib.sha256(raw).hexdigest())

@@ -299,7 +299,10 @@ class ExperimentSettings:
             model's epochs (the original model's are matched in steps), ``train.seed`` is
             replaced by each run's seed. Epochs and batch size left at None are fitted to the
             augmented set (:meth:`gazeaug.train.TrainSettings.fitted`) and the original model uses
-            the same batch size.
+            the same batch size. A keypoint loss (``train.keypoint_loss_weight``) teaches where the
+            drawn eyes' points lie: only the augmented set's redirected eyes are drawn, so it needs
+            ``eyes="redirect"`` and the original model trains without it (weight 0, recorded as
+            ``keypoint_loss_weight`` in the results' ``runs``).
         workers: processes for the dataset runs.
         seed: the first seed; run ``i`` uses ``seed + i`` for the augmentation and the training.
         seeds: how many runs (default 3); every metric is reported as mean and standard
@@ -349,6 +352,12 @@ class ExperimentSettings:
             raise GazeAugError(f"n_boot: expected an integer >= 100, got {self.n_boot!r}")
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise GazeAugError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        if isinstance(self.train, TrainSettings) and self.train.keypoint_loss_weight > 0 and self.eyes != "redirect":
+            # the eye keypoints are where the drawn eyes put them: only redirected eyes are drawn
+            raise GazeAugError(
+                "a keypoint loss needs the augmented set's eye keypoints, which only redirected eyes have: "
+                "give eyes='redirect' (--redirect-eyes) or no keypoint loss"
+            )
         side = min(self.normalization.patch_size_wh)
         if isinstance(self.train, TrainSettings) and self.train.shift_average_px >= side:
             # refused here, before the sets are made, not by the first training after minutes of work
@@ -556,6 +565,8 @@ def run_experiment(
             if i == 0:
                 check_steps(name, steps, minimum)
             ts = replace(s.train, epochs=epochs, batch_size=batch, seed=seed)
+            if name == "original":  # no eye is drawn in the original set: it has no keypoints to learn
+                ts = replace(ts, keypoint_loss_weight=0.0)
             model_path = d / f"model_{name}.pt"
             train(h5, model_path, ts, progress=progress)
             model, meta = load_model(model_path)
@@ -577,6 +588,7 @@ def run_experiment(
                 "steps": steps,
                 "min_steps": minimum,
                 "enough_steps": steps >= minimum,
+                "keypoint_loss_weight": ts.keypoint_loss_weight,
             }
         per_seed.append(run)
     # the test set's own distribution (normalize it, no training)

@@ -751,9 +751,7 @@ def track(
 
     s = settings
     if calibration is not None:  # tied to a model file's bytes and to how it is read
-        from .calibration import model_digest
-
-        calibration.check_for(model_digest(estimator.path), estimator.mirror_average)
+        calibration.check_for(estimator.model_sha256, estimator.mirror_average)
     estimator.warm_up()  # its one-time costs before the timed loop (and its failures before any output)
     src = open_source(source, s.folder_fps)
     if s.folder_fps is not None and src.kind not in ("folder", "image"):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import hashlib
 import io
 import json
 import math
@@ -493,8 +494,17 @@ def _save(obj: dict[str, Any], path: Path) -> None:
 LOADER = "torch.load(weights_only=True)"
 
 
+#: The key under which :func:`_load_plain` and :func:`load_model`'s ``meta`` give the SHA-256 (hex)
+#: of the file's bytes as read.
+FILE_SHA256_KEY = "file_sha256"
+
+
 def _load_plain(path: Path, what: str) -> dict[str, Any]:
     """A ``.pt`` file's top-level dict, read so that no code in the file can run.
+
+    The file is read once; the SHA-256 (hex) of the bytes read is returned under the key
+    :data:`FILE_SHA256_KEY` (a key no file of ours holds): what a calibration is tied to, of the
+    very bytes the model was built from.
 
     Raises:
         GazeAugError: missing or unreadable, truncated, not a PyTorch file, holds objects other than
@@ -530,6 +540,7 @@ def _load_plain(path: Path, what: str) -> dict[str, Any]:
         ) from exc
     if not isinstance(obj, dict):
         raise GazeAugError(f"{path}: not a {what} (expected a dict, got {type(obj).__name__})")
+    obj[FILE_SHA256_KEY] = hashlib.sha256(raw).hexdigest()
     return obj
 
 
@@ -647,7 +658,7 @@ def load_model(
     meta["shift_average_px"] = shift
     meta["normalization"] = normalization.as_dict()  # checked, in full (absent keys: the defaults)
     meta["patch_size_wh"] = patch
-    return model, meta
+    return model, meta  # meta[FILE_SHA256_KEY]: the digest of the bytes read (_load_plain)
 
 
 def check_mirror_average(value: Any) -> bool | None:

@@ -108,3 +108,40 @@ def test_geometric_reading_fits_the_pupils_offset_from_the_contour():
     assert got["pupil_from_contour"]["error_deg"] < 0.01  # float32 labels: exact to rounding
     assert got["pupil_from_patch_centre"]["error_deg"] > 0.5  # the contour's place unknown: not exact
     assert got["constant_deg"] > 1.0
+
+
+def _disc_patch(centre_xy, radius=6.0, lid_y=None, size_wh=(60, 36)):
+    """A dark disc (grey 40) on a bright patch (200), area-sampled 8 x 8 per pixel; pixel centres at whole numbers.
+
+    With ``lid_y``, everything above that row (y down) is skin (150): an upper lid over the disc's top.
+    """
+    w, h = size_wh
+    sub = (np.arange(8) + 0.5) / 8 - 0.5
+    ys = (np.arange(h)[:, None] + sub[None, :]).ravel()
+    xs = (np.arange(w)[:, None] + sub[None, :]).ravel()
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    fine = np.where((xx - centre_xy[0]) ** 2 + (yy - centre_xy[1]) ** 2 < radius**2, 40.0, 200.0)
+    if lid_y is not None:
+        fine[yy < lid_y] = 150.0
+    return fine.reshape(h, 8, w, 8).mean(axis=(1, 3))
+
+
+@pytest.mark.parametrize("centre", [(30.0, 18.0), (33.3, 15.6), (24.7, 21.2)])
+def test_classical_finders_place_a_dark_disc(centre):
+    framing = benchmark_module("framing")
+    grey = _disc_patch(centre)
+    # offsets from the principal point (w / 2, h / 2) = (30, 18)
+    want = np.array(centre) - [30.0, 18.0]
+    assert np.allclose(framing.iris_by_gradients(grey), want, atol=0.25)
+    assert np.allclose(framing.iris_by_circles(grey), want, atol=0.25)
+
+
+def test_a_lid_over_the_iris_moves_the_circle_finder_least():
+    framing = benchmark_module("framing")
+    grey = _disc_patch((31.5, 19.0), radius=6.5, lid_y=16.0)  # the top 3.5 px of the disc hidden
+    circles = framing.iris_by_circles(grey)
+    gradients = framing.iris_by_gradients(grey)
+    # the lid's edge pulls both down (y +); the circles' arcs mostly lie below it: under half a pixel
+    assert circles[0] == pytest.approx(1.5, abs=0.1)
+    assert 0.0 <= circles[1] - 1.0 < 0.45
+    assert gradients[1] - 1.0 > circles[1] - 1.0

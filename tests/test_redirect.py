@@ -329,3 +329,11 @@ def test_cli_builtin_experiment_redirects_the_eyes_by_default(tmp_path):
     assert settings["eyes"] == "redirect" and settings["rig"] == "wheelchair"
     report = (xp / "report.md").read_text()
     assert "redirected eyes: head poses and gaze targets drawn from the `wheelchair` rig" in report
+
+
+def test_cli_experiment_keypoint_loss_needs_redirected_eyes(tmp_path, capsys):
+    # the keypoints are where the drawn eyes put them: with the paper's method no eye is drawn
+    assert main(["experiment", "-o", str(tmp_path / "xp"), "--keep-eyes", "--keypoint-loss", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "keypoint loss" in err[0] and "redirect" in err[0], err
+    assert not (tmp_path / "xp").exists()  # refused before any simulation

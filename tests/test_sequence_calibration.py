@@ -341,3 +341,26 @@ def test_a_sequence_file_nested_too_deeply_is_refused_in_words(tmp_path):
     (tmp_path / "sequence.json").write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(GazeAugError, match="not a readable sequence file"):
         _sequence_fps(tmp_path)
+
+
+def test_an_estimator_is_tied_to_the_bytes_it_read(tmp_path):
+    import hashlib
+    import shutil
+
+    from gazeaug.estimator import load_estimator
+    from gazeaug.models.train_demo import DEMO_MODEL
+
+    if not DEMO_MODEL.is_file():
+        pytest.skip("the built-in demo model is not there")
+    path = tmp_path / "m.pt"
+    shutil.copyfile(DEMO_MODEL, path)
+    want = hashlib.sha256(path.read_bytes()).hexdigest()
+    est = load_estimator(path)
+    assert est.model_sha256 == want == model_digest(path)
+    # the file replaced after loading: the estimator still names the model it holds, a new one the new file
+    path.write_bytes(path.read_bytes() + b"\0")
+    assert est.model_sha256 == want != model_digest(path)
+    cal = fit_calibration(_points(), _points(), np.arange(5), want)
+    cal.check_for(est.model_sha256, est.mirror_average)
+    with pytest.raises(GazeAugError, match="another model"):
+        cal.check_for(model_digest(path))
