@@ -177,7 +177,7 @@ def _subpixel_peak(score: np.ndarray) -> tuple[float, float]:
 def iris_by_gradients(grey: np.ndarray, box_px: tuple[int, int] = (14, 9), reach_px: float = 8.0) -> np.ndarray:
     """The iris centre by means of gradients (Timm and Barth 2011), darkness-weighted.
 
-    Convention: ``grey`` (H, W), any numeric dtype, grey levels; returns (2,) float64 (x right, y
+    Convention: ``grey`` (H, W), any numeric dtype, grey levels 0-255; returns (2,) float64 (x right, y
     down) px from the patch's principal point ``(W / 2, H / 2)``, pixel centres at whole numbers.
     The candidates lie within ``box_px`` (half-width, half-height) of the principal point (the eye
     is framed there within a few px); each scores the mean of ``max(0, d . g)^2`` over the strong

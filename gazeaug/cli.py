@@ -642,7 +642,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="samples per step, both models (default: fitted to the augmented set's size, as gazeaug train fits it)",
     )
     xp.add_argument("--lr", type=finite_float, default=3e-3, help=LR_HELP)
-    _add_train_input_options(xp)
+    _add_train_input_options(
+        xp,
+        "; the augmented model's alone (only redirected eyes are drawn: needs --redirect-eyes), the report "
+        "says so",
+    )
     _add_normalization_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
     xp.add_argument(
@@ -964,8 +968,11 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_train_input_options(p: argparse.ArgumentParser) -> None:
-    """The training options of ``train`` and ``experiment`` (read by :func:`_train_input_settings`)."""
+def _add_train_input_options(p: argparse.ArgumentParser, keypoint_note: str = "") -> None:
+    """The training options of ``train`` and ``experiment`` (read by :func:`_train_input_settings`).
+
+    ``keypoint_note`` ends ``--keypoint-loss``'s help (what it means for this command).
+    """
     from .models import MODELS
 
     p.add_argument(
@@ -981,7 +988,7 @@ def _add_train_input_options(p: argparse.ArgumentParser) -> None:
         metavar="W",
         help="also teach the eye encoder where each eye's iris centre and opening centre lie (the set's "
         "eye_keypoints, written by augment --redirect-eyes), weight W, 0 to 100 (default 0: off); the model "
-        "file is the same network either way; in experiment the augmented model's alone (docs/model.md)",
+        f"file is the same network either way{keypoint_note} (docs/model.md)",
     )
     p.add_argument(
         "--no-augment",

@@ -3,6 +3,8 @@
 For a training dataset and a test dataset: normalize the training set
 (``normalize-dataset``), and for each of several seeds augment it
 (``augment``), train one model on each set with the same hyper-parameters
+(a keypoint loss, which only the augmented set's drawn eyes can feed, is the
+augmented model's alone, and the report says so)
 *and the same number of optimizer steps*, evaluate both on the test set
 through test-time normalization, and report every metric of
 :mod:`gazeaug.metrics` as mean and standard deviation over the seeds, beside
@@ -797,6 +799,13 @@ def _augmentation_line(settings: Mapping[str, Any]) -> str:
     k = settings.get("per_sample", "?")
     source = " The augmented model also trains on the original rows (`--with-source`)."
     source = source if settings.get("with_source") else ""
+    weight = (settings.get("train") or {}).get("keypoint_loss_weight") or 0
+    if weight:  # only the augmented set's drawn eyes have keypoints: not a setting both models share
+        source += (
+            f" The augmented model also learns where its drawn eyes' iris and opening centres lie (keypoint "
+            f"loss, weight {weight:g}); the original set has no drawn eyes and its model trains without it, "
+            "so the reduction includes that loss's effect."
+        )
     if settings.get("eyes") == "redirect":
         return (
             f"Augmentation: K = {k} per sample, redirected eyes: head poses and gaze targets drawn from the "

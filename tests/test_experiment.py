@@ -418,3 +418,14 @@ def test_cli_experiment_with_a_missing_dataset_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0], err
     assert not (tmp_path / "xp").exists()  # not even an empty report folder
+
+
+def test_the_report_says_a_keypoint_loss_is_the_augmented_models_alone():
+    from gazeaug.experiment import _augmentation_line
+
+    plain = _augmentation_line({"per_sample": 4, "eyes": "redirect", "rig": "wheelchair", "train": {}})
+    assert "keypoint" not in plain
+    line = _augmentation_line(
+        {"per_sample": 4, "eyes": "redirect", "rig": "wheelchair", "train": {"keypoint_loss_weight": 1.0}}
+    )
+    assert "keypoint loss, weight 1)" in line and "the reduction includes that loss's effect" in line
