@@ -644,8 +644,7 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--lr", type=finite_float, default=3e-3, help=LR_HELP)
     _add_train_input_options(
         xp,
-        "; the augmented model's alone (only redirected eyes are drawn: needs --redirect-eyes), the report "
-        "says so",
+        "; the augmented model's alone (only redirected eyes are drawn: needs --redirect-eyes), the report says so",
     )
     _add_normalization_options(xp)
     xp.add_argument("--seed", type=_seed, default=0, help="the first seed (default 0)")
