@@ -139,25 +139,32 @@ def _leave_one_subject_out(features: np.ndarray, gaze: np.ndarray, subjects: np.
     return pred
 
 
+def _scored(pred: np.ndarray, gaze: np.ndarray) -> dict:
+    """A reading's mean error (deg) and Pearson's r of pitch and yaw, rounded for the JSON line."""
+    from gazeaug.metrics import mean_error_deg, pearson
+
+    r = pearson(pred, gaze)
+    return {
+        "error_deg": round(mean_error_deg(pred, gaze), 2),
+        "r_pitch": round(float(r[0]), 3),
+        "r_yaw": round(float(r[1]), 3),
+    }
+
+
+def _linear_reading(eye_points: np.ndarray, d: dict, subjects: np.ndarray) -> dict:
+    """The gaze read linearly (leave one subject out) from (N, 2, 2) px per eye and the head pose, scored."""
+    gaze = d["gaze"].astype(np.float64)
+    features = np.c_[eye_points.reshape(len(gaze), 4), d["head_pose"].astype(np.float64)]
+    return _scored(_leave_one_subject_out(features, gaze, subjects), gaze)
+
+
 def _geometric_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
     """``--reading``: the pupil from the true contour centre and from the patch centre (module docstring)."""
-    from gazeaug.metrics import constant_guess_error_deg, mean_error_deg, pearson
+    from gazeaug.metrics import constant_guess_error_deg
 
-    gaze = d["gaze"].astype(np.float64)
-    n = len(gaze)
-    out: dict = {"constant_deg": round(constant_guess_error_deg(gaze), 2)}
-    for name, pupil in (
-        ("pupil_from_contour", points["pupil"] - points["contour"]),
-        ("pupil_from_patch_centre", points["pupil"]),
-    ):
-        features = np.c_[pupil.reshape(n, 4), d["head_pose"].astype(np.float64)]
-        pred = _leave_one_subject_out(features, gaze, subjects)
-        r = pearson(pred, gaze)
-        out[name] = {
-            "error_deg": round(mean_error_deg(pred, gaze), 2),
-            "r_pitch": round(float(r[0]), 3),
-            "r_yaw": round(float(r[1]), 3),
-        }
+    out: dict = {"constant_deg": round(constant_guess_error_deg(d["gaze"].astype(np.float64)), 2)}
+    out["pupil_from_contour"] = _linear_reading(points["pupil"] - points["contour"], d, subjects)
+    out["pupil_from_patch_centre"] = _linear_reading(points["pupil"], d, subjects)
     return out
 
 
@@ -246,10 +253,6 @@ def _classical_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
     """``--classical``: each finder's iris centres against the true pupil, and the linear readings from them."""
     import cv2
 
-    from gazeaug.metrics import mean_error_deg, pearson
-
-    gaze = d["gaze"].astype(np.float64)
-    n = len(gaze)
     out: dict = {}
     for name, finder in (("gradients", iris_by_gradients), ("circles", iris_by_circles)):
         found = np.stack(
@@ -266,22 +269,13 @@ def _classical_reading(points: dict, d: dict, subjects: np.ndarray) -> dict:
             "p90_px": round(float(np.percentile(dist, 90)), 2),
             "mean_miss_px_xy": [round(float(v), 2) for v in miss.reshape(-1, 2).mean(axis=0)],
         }
-        for reading, feature in (("from_true_contour", found - points["contour"]), ("from_patch_centre", found)):
-            pred = _leave_one_subject_out(
-                np.c_[feature.reshape(n, 4), d["head_pose"].astype(np.float64)], gaze, subjects
-            )
-            r = pearson(pred, gaze)
-            row[reading] = {
-                "error_deg": round(mean_error_deg(pred, gaze), 2),
-                "r_pitch": round(float(r[0]), 3),
-                "r_yaw": round(float(r[1]), 3),
-            }
+        row["from_true_contour"] = _linear_reading(found - points["contour"], d, subjects)
+        row["from_patch_centre"] = _linear_reading(found, d, subjects)
         out[name] = row
     return out
 
 
 def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviations: np.ndarray) -> dict:
-    from gazeaug.metrics import mean_error_deg, pearson
     from gazeaug.train import load_model, predict_arrays
 
     model, _ = load_model(model_path)
@@ -297,12 +291,7 @@ def _model_under_framings(model_path: Path, d: dict, offsets: np.ndarray, deviat
             _reframed(d["right_eye"], shift[:, 1]),
             d["head_pose"].astype(np.float32),
         )
-        r = pearson(pred, d["gaze"])
-        out[name] = {
-            "error_deg": round(mean_error_deg(pred, d["gaze"]), 2),
-            "r_pitch": round(float(r[0]), 3),
-            "r_yaw": round(float(r[1]), 3),
-        }
+        out[name] = _scored(pred, d["gaze"])
     return out
 
 
