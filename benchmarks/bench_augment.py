@@ -25,6 +25,8 @@ import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from facemesh.io import load_image_rgb  # noqa: E402
 from facemesh.landmarks.mediapipe import MediaPipeFaceMesh  # noqa: E402
@@ -54,11 +56,12 @@ def make_folder(data: Path, root: Path, copies: int) -> int:
 def main() -> None:
     """Run the measurements."""
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--copies", type=int, default=12)
     ap.add_argument("--per-sample", type=int, default=4)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "ds"

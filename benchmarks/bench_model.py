@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from gazeaug.io_h5 import H5Writer, Rows  # noqa: E402
 from gazeaug.train import TrainSettings, load_model, train  # noqa: E402
@@ -61,10 +63,9 @@ def synthetic(path: Path, n: int) -> Path:
 def main() -> None:
     """Run both measurements."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     data = ap.parse_args().data
-    if not (data / "faces").is_dir():
-        ap.exit(2, f"{data / 'faces'}: no such folder (--data: ../shared/data)\n")
+    require_data(ap, data, "faces")
     warnings.simplefilter("ignore")
     import torch
 

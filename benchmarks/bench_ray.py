@@ -30,8 +30,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from bench_augment import make_folder  # noqa: E402
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from gazeaug.datasets import open_dataset  # noqa: E402
 from gazeaug.engine import Engine  # noqa: E402
@@ -42,12 +42,13 @@ from gazeaug.jobs import JobSettings, run_dataset  # noqa: E402
 def main() -> None:
     """Run the measurements."""
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--copies", type=int, default=12)
     ap.add_argument("--per-sample", type=int, default=4)
     ap.add_argument("--actors", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--block-size", type=int, default=16)
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     import ray
 
     from gazeaug.io_h5 import H5Writer

@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py: the photos every benchmark uses)
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from facemesh.build import fit_face, mesh_for_fit  # noqa: E402
 from facemesh.camera import camera_for_image  # noqa: E402
@@ -109,11 +110,12 @@ def eye_patches(asset, mesh: FaceMesh) -> tuple[np.ndarray, np.ndarray]:
 def main() -> None:
     """Print the table (and draw the figure)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--photos", type=int, default=len(PHOTOS), help="how many of the photos (default all 9)")
     ap.add_argument("--methods", nargs="+", default=list(SURFACE_METHODS), choices=SURFACE_METHODS)
     ap.add_argument("--figure", type=Path, help="also draw the first photo's surfaces turned frontal here")
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
 
     from gazeaug.augment import face_asset
 

@@ -27,6 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 
 def _default_models(work: Path) -> tuple[Path, Path]:
@@ -51,8 +52,9 @@ def main() -> None:
     ap.add_argument("--model", type=Path, action="append", help=".pt or .onnx (repeatable)")
     ap.add_argument("--frames", type=int, default=300, help="frames per video (default 300)")
     ap.add_argument("--video", type=Path, action="append", help="videos (default pexels/video00-02.mp4)")
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    add_data_option(ap)
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     videos = args.video or [args.data / "faces" / "pexels" / f"video0{i}.mp4" for i in range(3)]
     videos = [v for v in videos if v.is_file()]
     if not videos:

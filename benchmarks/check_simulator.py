@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from facemesh.io import load_image_rgb  # noqa: E402
 from gazeaug.datasets import open_dataset  # noqa: E402
@@ -40,8 +42,9 @@ def main() -> None:
     """Run the checks."""
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--per-face", type=int, default=20)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     args = ap.parse_args()
+    require_data(ap, args.data, "faces/sergey.png", "faces/business-person.png")
     warnings.simplefilter("ignore")
     faces = [*_wheel_faces()] + [str(args.data / "faces" / n) for n in ("sergey.png", "business-person.png")]
     det = default_landmark_model()

@@ -26,6 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 
 def real_frame_error(est, folder: Path) -> float:
@@ -62,10 +63,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, default=DEMO_MODEL)
     ap.add_argument("--per-person", type=int, default=50)
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/demo_eval"))
     ap.add_argument("--card", action="store_true", help="record the figures in the model's card (M.json)")
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     warnings.simplefilter("ignore")
     est = load_estimator(args.model)
     test = args.output / "test_wheelchair"

@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 PHOTOS = ("sergey.png", "pexels/image00.jpg")
 #: (face patch (width, height), face focal px): none, half resolution, ETH-XGaze's.
@@ -72,13 +74,11 @@ def main() -> None:
     from gazeaug.pipeline import fit_face, mesh_for_fit
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--repeat", type=int, default=12)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    missing = [p for p in PHOTOS if not (args.data / "faces" / p).is_file()]
-    if missing:
-        ap.exit(2, f"{args.data / 'faces' / missing[0]}: no such file (--data: ../shared/data)\n")
+    require_data(ap, args.data, *(f"faces/{p}" for p in PHOTOS))
     det = MediaPipeFaceMesh(refine_landmarks=True)
     out: dict[str, Any] = {}
     for name in PHOTOS:

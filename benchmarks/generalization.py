@@ -41,8 +41,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 
 def test_people(data: Path, work: Path) -> list[Path]:
@@ -117,7 +117,7 @@ def run() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--per-face", type=int, default=40)
     ap.add_argument("--identities", type=int, default=40, help="identities per training photo")
     ap.add_argument("--test-per-person", type=int, default=15)
@@ -177,10 +177,8 @@ def run() -> None:
     out = args.output
     sim = SimSettings(vary_identity=not args.no_vary)  # the test people's
     train_sim = SimSettings(vary_identity=not args.no_vary, texture_mix_share=args.texture_mix)
+    require_data(ap, args.data, *(f"faces/{n}" for n in TRAIN_PHOTOS))  # before anything is written to OUT
     faces = [args.data / "faces" / n for n in TRAIN_PHOTOS]
-    missing = [f for f in faces if not f.is_file()]
-    if missing:  # before anything is written to OUT
-        ap.exit(2, f"{missing[0]}: no such file (one of the 9 training photos; --data: ../shared/data)\n")
     people = test_people(args.data, out / "people")
     kw = {"progress": False, "overwrite": True, "settings": sim}
     train_dir, test_dir, same_dir = out / "train_screen", out / "test_wheelchair", out / "test_screen"

@@ -41,6 +41,8 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from gazeaug.faces import (  # noqa: E402
     MAX_YAW_DEG,
@@ -226,10 +228,11 @@ def main() -> None:
     from gazeaug.pipeline import default_landmark_model
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--sheet", type=Path, default=Path("/tmp/people_sheet.png"))
     ap.add_argument("--per-video", type=int, default=1)
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     det = default_landmark_model()
     people = other_people(args.data, detector=det, per_video=args.per_video)
     for s in people:

@@ -73,9 +73,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from generalization import test_people  # noqa: E402  (benchmarks/generalization.py)
 from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 #: The fields of a :class:`gazeaug.simulate.SubjectDraw` that make the face (the rest are the eyes).
 FACE_FIELDS = ("shape_coefficients", "head_scale", "skin_gain", "glasses", "texture_mix_pick", "texture_mix_weight")
@@ -270,7 +270,7 @@ def run() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--draw", type=int, default=1, help="generalization.py's --seed whose test this is (default 1)")
     ap.add_argument(
         "--cells",
@@ -293,8 +293,7 @@ def run() -> None:
     for name in ("draw", "images", "seeds"):
         if getattr(args, name) < (0 if name == "draw" else 1):
             ap.error(f"--{name}: expected an integer >= {0 if name == 'draw' else 1}, got {getattr(args, name)}")
-    if not (args.data / "faces").is_dir():
-        ap.exit(2, f"{args.data / 'faces'}: no such folder (--data: ../shared/data)\n")
+    require_data(ap, args.data, "faces")
     warnings.simplefilter("ignore")
     out = args.output
     people = test_people(args.data, out / "people")

@@ -40,8 +40,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from people import TRAIN_PHOTOS  # noqa: E402  (benchmarks/people.py)
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 NORMALIZATION = ["--focal", "960", "--distance", "600", "--patch-size", "60", "36"]
 
@@ -123,7 +123,7 @@ def source_sheet(people_h5: Path, redirect_h5: Path, out_png: Path, sources: int
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--per-face", type=int, default=40)
     ap.add_argument("--video-frames", type=int, default=150, help="frames per real video (default 150)")
     ap.add_argument("--seed", type=int, default=0)
@@ -133,8 +133,7 @@ def main() -> None:
     from gazeaug.realism import RealismSettings, compare_patches, read_eye_patches, realism_sheet
 
     real_npz = args.data / "gaze" / "mpiigaze_eyes_unlabeled" / "test_eyes.npz"
-    if not real_npz.is_file():
-        sys.exit(f"realism: {real_npz}: no such file (the MPIIGaze patches of ../shared/data)")
+    require_data(ap, args.data, "faces", str(real_npz.relative_to(args.data)))
     out = args.output
     (out / "report").mkdir(parents=True, exist_ok=True)
     faces = [str(args.data / "faces" / p) for p in TRAIN_PHOTOS]

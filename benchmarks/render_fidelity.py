@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from facemesh.camera import camera_for_image  # noqa: E402
 from facemesh.io import load_image_rgb  # noqa: E402
@@ -33,9 +35,10 @@ TARGET = np.array([60.0, 90.0, -20.0])
 def main() -> None:
     """Print the table."""
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("--filament", action="store_true")
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     det = MediaPipeFaceMesh()
     print(
         "| photo | MAD left | MAD right | max label diff (deg) |"

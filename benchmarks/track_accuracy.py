@@ -30,6 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 RIG = ROOT / "data_samples" / "rigs" / "wheelchair_objects.yaml"
 
@@ -49,11 +50,12 @@ def main() -> None:
     ap.add_argument("--model", type=Path, required=True)
     ap.add_argument("--people", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=20.0)
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    add_data_option(ap)
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/track_acc"))
     ap.add_argument("--fresh", action="store_true", help="simulate the sequences again even if OUT has them")
     ap.add_argument("--card", action="store_true", help="record the medians in the model's card (M.json)")
     args = ap.parse_args()
+    require_data(ap, args.data, "faces")
     if args.fresh:
         import shutil
 

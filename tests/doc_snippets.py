@@ -88,25 +88,50 @@ class Command:
     text: str
 
 
+def _fences(doc: Path, lines: list[str]) -> list[tuple[int, int, str, str, str]]:
+    """Every fenced block of a Markdown file's lines: (opening line index, closing line index,
+    indent, info string's first word, its second word).
+
+    A fence is ```` ``` ```` or ``~~~`` (three or more), indented up to 4 spaces (list items); it
+    closes at the first line that starts with the same indent and at least as many of the same
+    character, and nothing else on it. Raises ValueError on a block never closed.
+    """
+    out = []
+    i = 0
+    while i < len(lines):
+        m = re.match(r"^( {0,4})(`{3,}|~{3,})\s*(\S*)\s*(\S*)", lines[i])
+        if m:
+            indent, fence = m.group(1), m.group(2)
+            close = re.compile(re.escape(indent) + re.escape(fence[0]) + "{" + str(len(fence)) + r",}\s*$")
+            j = i + 1
+            while j < len(lines) and not close.match(lines[j]):
+                j += 1
+            if j == len(lines):
+                raise ValueError(f"{doc}:{i + 1}: fenced block never closed")
+            out.append((i, j, indent, m.group(3), m.group(4)))
+            i = j
+        i += 1
+    return out
+
+
 def blocks(doc: Path) -> list[Block]:
     """The fenced blocks of a Markdown file, in order."""
     lines = doc.read_text(encoding="utf-8").split("\n")
     out: list[Block] = []
-    i = 0
-    while i < len(lines):
-        m = re.match(r"^( {0,4})```\s*(\S*)\s*(\S*)", lines[i])  # a fence, maybe indented in a list item
-        if m:
-            indent = m.group(1)
-            j = i + 1
-            while j < len(lines) and not lines[j].startswith(indent + "```"):
-                j += 1
-            if j == len(lines):
-                raise ValueError(f"{doc}:{i + 1}: fenced block never closed")
-            text = "\n".join(line[len(indent) :] if line.startswith(indent) else line for line in lines[i + 1 : j])
-            out.append(Block(doc, i + 1, m.group(2), m.group(3), text))
-            i = j
-        i += 1
+    for i, j, indent, lang, role in _fences(doc, lines):
+        text = "\n".join(line[len(indent) :] if line.startswith(indent) else line for line in lines[i + 1 : j])
+        out.append(Block(doc, i + 1, lang, role, text))
     return out
+
+
+def prose(doc: Path, text: str | None = None) -> str:
+    """A Markdown file's text with every fenced block's lines (fences included) left empty, so
+    that what looks like a heading or a link inside a block is not taken for one; line numbers
+    are kept. ``text``: the document's text if already read (``doc`` then only names it)."""
+    lines = (doc.read_text(encoding="utf-8") if text is None else text).split("\n")
+    for i, j, *_ in _fences(doc, lines):
+        lines[i : j + 1] = [""] * (j + 1 - i)
+    return "\n".join(lines)
 
 
 def _strip_comment(line: str) -> str:

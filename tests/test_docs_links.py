@@ -11,9 +11,8 @@ import re
 from functools import cache
 from pathlib import Path
 
-from doc_snippets import DOCS, REPO
+from doc_snippets import DOCS, REPO, prose
 
-FENCE = re.compile(r"^[ \t]*(```|~~~).*?^[ \t]*\1", re.S | re.M)  # indented ones too (list items)
 LINK = re.compile(r"\]\(([^)\s#]*)(?:#([^)\s]+))?\)")
 
 
@@ -26,7 +25,7 @@ def anchors(text: str) -> set[str]:
     """The anchors of a Markdown document's headings, repeated ones numbered."""
     seen: dict[str, int] = {}
     out = set()
-    for match in re.finditer(r"^#{1,6} (.*)$", FENCE.sub("", text), re.M):
+    for match in re.finditer(r"^#{1,6} (.*)$", prose(Path("<text>"), text), re.M):
         base = anchor(match.group(1))
         n = seen.get(base, 0)
         out.add(base if n == 0 else f"{base}-{n}")
@@ -45,13 +44,14 @@ def test_anchor_is_githubs() -> None:
         "measured-the-photo-known-or-the-design-2026-11-30"
     )
     assert anchors("# A\n## A\n```\n# B\n```\n## B_c x\n  ~~~\n# C\n  ~~~\n") == {"a", "a-1", "b_c-x"}
+    # A longer fence holds a shorter one; a fence line with more after it does not close.
+    assert anchors("````md\n```\n# D\n```\n````\n# E\n```bash\n# F\n```bash\n# G\n```\n") == {"e"}
 
 
 def test_every_relative_link_and_anchor_resolves() -> None:
     bad, checked, anchored = [], 0, 0
     for doc in DOCS:
-        text = doc.read_text(encoding="utf-8")
-        for match in LINK.finditer(FENCE.sub("", text)):
+        for match in LINK.finditer(prose(doc)):
             path, fragment = match.group(1), match.group(2)
             if re.match(r"[a-z]+:", path):  # https:, mailto:
                 continue
