@@ -322,13 +322,23 @@ def test_cli_builtin_experiment_keep_eyes_is_the_papers_method(tmp_path, monkeyp
 def test_cli_builtin_experiment_redirects_the_eyes_by_default(tmp_path):
     import json
 
+    from gazeaug.train import load_model
+
     xp = tmp_path / "xp"
     args = ["experiment", "-o", str(xp), "--per-face", "2"]  # the built-in recipe: --rig wheelchair --redirect-eyes
-    assert main([*args, "--epochs", "1", "--seeds", "1", "--quiet"]) == 0
-    settings = json.loads((xp / "results.json").read_text())["settings"]
+    # with a keypoint loss: the augmented model learns the drawn eyes' keypoints, the original model
+    # (whose set has none: no eye is drawn in it) trains at weight 0
+    assert main([*args, "--epochs", "1", "--seeds", "1", "--keypoint-loss", "1", "--quiet"]) == 0
+    results = json.loads((xp / "results.json").read_text())
+    settings = results["settings"]
     assert settings["eyes"] == "redirect" and settings["rig"] == "wheelchair"
     report = (xp / "report.md").read_text()
     assert "redirected eyes: head poses and gaze targets drawn from the `wheelchair` rig" in report
+    assert results["runs"]["original"]["keypoint_loss_weight"] == 0
+    assert results["runs"]["augmented"]["keypoint_loss_weight"] == 1
+    for name, weight in (("original", 0), ("augmented", 1)):  # what each model file says it was trained with
+        _, meta = load_model(xp / "seed0" / f"model_{name}.pt")
+        assert meta["train_settings"]["keypoint_loss_weight"] == weight, name
 
 
 def test_cli_experiment_keypoint_loss_needs_redirected_eyes(tmp_path, capsys):
