@@ -61,7 +61,7 @@ def main() -> None:
     ap.add_argument("--per-sample", type=int, default=4)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *(f"faces/{p}" for p in PHOTOS))
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "ds"

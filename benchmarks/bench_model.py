@@ -65,7 +65,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_data_option(ap)
     data = ap.parse_args().data
-    require_data(ap, data, "faces")
+    require_data(ap, data, *(f"faces/{p}" for p in PHOTOS))
     warnings.simplefilter("ignore")
     import torch
 

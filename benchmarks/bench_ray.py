@@ -30,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_augment import make_folder  # noqa: E402
+from bench_augment import PHOTOS, make_folder  # noqa: E402
 from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 from gazeaug.datasets import open_dataset  # noqa: E402
@@ -48,7 +48,7 @@ def main() -> None:
     ap.add_argument("--actors", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--block-size", type=int, default=16)
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *(f"faces/{p}" for p in PHOTOS))
     import ray
 
     from gazeaug.io_h5 import H5Writer

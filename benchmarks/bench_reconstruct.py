@@ -115,7 +115,7 @@ def main() -> None:
     ap.add_argument("--methods", nargs="+", default=list(SURFACE_METHODS), choices=SURFACE_METHODS)
     ap.add_argument("--figure", type=Path, help="also draw the first photo's surfaces turned frontal here")
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *(f"faces/{p}" for p in PHOTOS[: args.photos]))
 
     from gazeaug.augment import face_asset
 

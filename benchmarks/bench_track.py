@@ -54,11 +54,13 @@ def main() -> None:
     ap.add_argument("--video", type=Path, action="append", help="videos (default pexels/video00-02.mp4)")
     add_data_option(ap)
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    if args.video:  # the videos given, each of them; else the shared data's three
+        missing = [v for v in args.video if not v.is_file()]
+        if missing:
+            ap.exit(2, f"{ap.prog}: {missing[0]}: no such video file\n")
+    else:
+        require_data(ap, args.data, *(f"faces/pexels/video0{i}.mp4" for i in range(3)))
     videos = args.video or [args.data / "faces" / "pexels" / f"video0{i}.mp4" for i in range(3)]
-    videos = [v for v in videos if v.is_file()]
-    if not videos:
-        sys.exit(f"bench_track: no video found (looked in {args.data / 'faces' / 'pexels'})")
     rig = load_rig(ROOT / "data_samples" / "rigs" / "wheelchair_objects.yaml")
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:

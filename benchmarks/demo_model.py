@@ -50,9 +50,10 @@ def real_frame_error(est, folder: Path) -> float:
 
 def main() -> None:
     """Run it."""
-    from people import other_people  # benchmarks/people.py
+    from people import PEOPLE_FILES, other_people  # benchmarks/people.py
 
     from gazeaug.datasets import open_dataset
+    from gazeaug.errors import GazeAugError
     from gazeaug.estimator import load_estimator
     from gazeaug.evaluate import evaluate_h5
     from gazeaug.jobs import JobSettings, run_dataset
@@ -67,9 +68,12 @@ def main() -> None:
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/demo_eval"))
     ap.add_argument("--card", action="store_true", help="record the figures in the model's card (M.json)")
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *PEOPLE_FILES)
     warnings.simplefilter("ignore")
-    est = load_estimator(args.model)
+    try:
+        est = load_estimator(args.model)
+    except GazeAugError as exc:
+        ap.exit(2, f"{ap.prog}: {exc}\n")
     test = args.output / "test_wheelchair"
     h5 = args.output / "test_wheelchair.h5"
     if not h5.is_file():

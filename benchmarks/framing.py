@@ -66,6 +66,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -353,8 +354,19 @@ def main() -> int:
     except GazeAugError as exc:
         print(exc, file=sys.stderr)
         return 2
-    if len(d["source_index"]) and int(d["source_index"].max()) >= len(records):
-        print(f"{args.normalized}: rows of other images than {args.simulated}'s {len(records)}", file=sys.stderr)
+    made_from = ts.attrs.get("dataset")  # the folder the set was normalized from, as recorded then
+    read = ts.attrs.get("next_source_index")  # how many of its images the run read
+    moved = made_from is None or not Path(str(made_from)).is_dir()  # a moved set: judged by its count alone
+    if (
+        (len(d["source_index"]) and int(d["source_index"].max()) >= len(records))
+        or (read is not None and int(read) != len(records))
+        or (not moved and Path(str(made_from)).resolve() != args.simulated.resolve())
+    ):
+        print(
+            f"{args.normalized}: made from {made_from} ({read} images), not from {args.simulated} "
+            f"({len(records)} images)",
+            file=sys.stderr,
+        )
         return 2
     subjects = ts.subjects[ts.rows]
     try:
@@ -389,8 +401,19 @@ def main() -> int:
         except GazeAugError as exc:
             print(exc, file=sys.stderr)
             return 2
-    print(json.dumps(result))
+    print(json.dumps(_finite_or_none(result)))
     return 0
+
+
+def _finite_or_none(value: Any) -> Any:
+    """``value`` with every NaN or infinite float replaced by None (JSON has no NaN: one subject has no r)."""
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_none(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
+from people import PEOPLE_FILES, TRAIN_FILES, TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
 from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 
@@ -177,7 +177,7 @@ def run() -> None:
     out = args.output
     sim = SimSettings(vary_identity=not args.no_vary)  # the test people's
     train_sim = SimSettings(vary_identity=not args.no_vary, texture_mix_share=args.texture_mix)
-    require_data(ap, args.data, *(f"faces/{n}" for n in TRAIN_PHOTOS))  # before anything is written to OUT
+    require_data(ap, args.data, *TRAIN_FILES, *PEOPLE_FILES)  # before anything is written to OUT
     faces = [args.data / "faces" / n for n in TRAIN_PHOTOS]
     people = test_people(args.data, out / "people")
     kw = {"progress": False, "overwrite": True, "settings": sim}

@@ -74,7 +74,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from generalization import test_people  # noqa: E402  (benchmarks/generalization.py)
-from people import TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
+from people import PEOPLE_FILES, TRAIN_FILES, TRAIN_PHOTOS, other_people  # noqa: E402  (benchmarks/people.py)
 from shared_data import add_data_option, require_data  # noqa: E402  (benchmarks/shared_data.py)
 
 #: The fields of a :class:`gazeaug.simulate.SubjectDraw` that make the face (the rest are the eyes).
@@ -293,7 +293,7 @@ def run() -> None:
     for name in ("draw", "images", "seeds"):
         if getattr(args, name) < (0 if name == "draw" else 1):
             ap.error(f"--{name}: expected an integer >= {0 if name == 'draw' else 1}, got {getattr(args, name)}")
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *TRAIN_FILES, *PEOPLE_FILES)
     warnings.simplefilter("ignore")
     out = args.output
     people = test_people(args.data, out / "people")

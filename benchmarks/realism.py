@@ -133,7 +133,7 @@ def main() -> None:
     from gazeaug.realism import RealismSettings, compare_patches, read_eye_patches, realism_sheet
 
     real_npz = args.data / "gaze" / "mpiigaze_eyes_unlabeled" / "test_eyes.npz"
-    require_data(ap, args.data, "faces", str(real_npz.relative_to(args.data)))
+    require_data(ap, args.data, *(f"faces/{p}" for p in TRAIN_PHOTOS), str(real_npz.relative_to(args.data)))
     out = args.output
     (out / "report").mkdir(parents=True, exist_ok=True)
     faces = [str(args.data / "faces" / p) for p in TRAIN_PHOTOS]

@@ -38,7 +38,7 @@ def main() -> None:
     add_data_option(ap)
     ap.add_argument("--filament", action="store_true")
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
+    require_data(ap, args.data, *(f"faces/{p}" for p in PHOTOS))
     det = MediaPipeFaceMesh()
     print(
         "| photo | MAD left | MAD right | max label diff (deg) |"

@@ -38,9 +38,10 @@ RIG = ROOT / "data_samples" / "rigs" / "wheelchair_objects.yaml"
 def main() -> None:
     """Run it."""
     import numpy as np
-    from people import other_people  # benchmarks/people.py
+    from people import PEOPLE_FILES, other_people  # benchmarks/people.py
 
     from gazeaug.calibration import calibrate
+    from gazeaug.errors import GazeAugError
     from gazeaug.estimator import load_estimator
     from gazeaug.sampling import load_rig
     from gazeaug.sequence import SequenceSettings, simulate_sequence
@@ -52,21 +53,26 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     add_data_option(ap)
     ap.add_argument("-o", "--output", type=Path, default=Path("/tmp/track_acc"))
-    ap.add_argument("--fresh", action="store_true", help="simulate the sequences again even if OUT has them")
+    ap.add_argument(
+        "--fresh", action="store_true", help="simulate the sequences again even if OUT has them (OUT/personNN only)"
+    )
     ap.add_argument("--card", action="store_true", help="record the medians in the model's card (M.json)")
     args = ap.parse_args()
-    require_data(ap, args.data, "faces")
-    if args.fresh:
-        import shutil
-
-        shutil.rmtree(args.output, ignore_errors=True)
+    require_data(ap, args.data, *PEOPLE_FILES)
     warnings.simplefilter("ignore")
     rig = load_rig(RIG)
-    est = load_estimator(args.model)
+    try:
+        est = load_estimator(args.model)
+    except GazeAugError as exc:
+        ap.exit(2, f"{ap.prog}: {exc}\n")
     people = list(other_people(args.data))[: args.people]
     rows = []
     for k, person in enumerate(people):
         d = args.output / f"person{k:02d}"
+        if args.fresh:  # only what this script writes: OUT/personNN, simulated again
+            import shutil
+
+            shutil.rmtree(d, ignore_errors=True)
         calib_seq = SequenceSettings(seconds=15.0, pattern="calibration")
         test_seq = SequenceSettings(seconds=args.seconds)
         for name, seq, seed in (("calib", calib_seq, 100 + k), ("test", test_seq, 200 + k)):

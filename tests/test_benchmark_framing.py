@@ -145,3 +145,12 @@ def test_a_lid_over_the_iris_moves_the_circle_finder_least():
     assert circles[0] == pytest.approx(1.5, abs=0.1)
     assert 0.0 <= circles[1] - 1.0 < 0.7
     assert gradients[1] - 1.0 > circles[1] - 1.0
+
+
+def test_the_printed_result_is_json_without_nan():
+    # one subject has no correlation (NaN): JSON has no NaN, the line must parse as JSON
+    import json
+
+    framing = benchmark_module("framing")
+    out = framing._finite_or_none({"r": [float("nan"), 0.5], "x": {"y": float("inf"), "z": 1}, "n": 3})
+    assert json.loads(json.dumps(out, allow_nan=False)) == {"r": [None, 0.5], "x": {"y": None, "z": 1}, "n": 3}
