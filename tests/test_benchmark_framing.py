@@ -154,3 +154,17 @@ def test_the_printed_result_is_json_without_nan():
     framing = benchmark_module("framing")
     out = framing._finite_or_none({"r": [float("nan"), 0.5], "x": {"y": float("inf"), "z": 1}, "n": 3})
     assert json.loads(json.dumps(out, allow_nan=False)) == {"r": [None, 0.5], "x": {"y": None, "z": 1}, "n": 3}
+
+
+def test_post_hoc_person_shift_and_linear_oracle_by_hand():
+    import numpy as np
+
+    post = benchmark_module("post_hoc")
+    pred = np.array([[0.1, 0.0], [0.3, 0.2], [-0.2, 0.5]])
+    subjects = np.array(["a", "a", "b"])
+    # a's mean (0.2, 0.1) moves to (0, 0): -0.2, -0.1 each; b's single row lands on the target
+    got = post.shift_each_person(pred, subjects, np.array([0.0, 0.0]))
+    assert np.allclose(got, [[-0.1, -0.1], [0.1, 0.1], [0.0, 0.0]])
+    # true = 2 * pred + 1 on each axis: the fitted line recovers it exactly
+    true = 2 * pred + 1
+    assert np.allclose(post.linear_oracle(pred, true), true)
