@@ -1428,6 +1428,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise GazeAugError("--per-face sizes the built-in simulated setup: not with --train/--test or --large")
     if args.keep_eyes and args.redirect_eyes:
         raise GazeAugError("give --keep-eyes (the paper's method) or --redirect-eyes, not both")
+    if args.keypoint_loss and (args.keep_eyes or (args.train is not None and not args.redirect_eyes)):
+        # the keypoints are where the drawn eyes put them: only redirected eyes are drawn
+        fix = "drop --keep-eyes" if args.keep_eyes else "add --redirect-eyes (with --rig)"
+        raise GazeAugError(
+            f"--keypoint-loss needs redirected eyes, whose keypoints are drawn: {fix} or drop --keypoint-loss"
+        )
     if args.train is None and not args.keep_eyes:
         _builtin_redirects(args)
     distribution = _distribution(args)  # a bad rig, distribution or patch is refused before minutes of work

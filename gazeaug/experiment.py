@@ -357,8 +357,8 @@ class ExperimentSettings:
         if isinstance(self.train, TrainSettings) and self.train.keypoint_loss_weight > 0 and self.eyes != "redirect":
             # the eye keypoints are where the drawn eyes put them: only redirected eyes are drawn
             raise GazeAugError(
-                "a keypoint loss needs the augmented set's eye keypoints, which only redirected eyes have: "
-                "give eyes='redirect' (--redirect-eyes) or no keypoint loss"
+                "train.keypoint_loss_weight > 0 needs the augmented set's eye keypoints, which only "
+                f"redirected eyes have: expected eyes='redirect', got eyes={self.eyes!r}"
             )
         side = min(self.normalization.patch_size_wh)
         if isinstance(self.train, TrainSettings) and self.train.shift_average_px >= side:

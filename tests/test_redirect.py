@@ -345,5 +345,17 @@ def test_cli_experiment_keypoint_loss_needs_redirected_eyes(tmp_path, capsys):
     # the keypoints are where the drawn eyes put them: with the paper's method no eye is drawn
     assert main(["experiment", "-o", str(tmp_path / "xp"), "--keep-eyes", "--keypoint-loss", "1", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "keypoint loss" in err[0] and "redirect" in err[0], err
+    assert len(err) == 1 and "--keypoint-loss needs redirected eyes" in err[0] and "drop --keep-eyes" in err[0], err
     assert not (tmp_path / "xp").exists()  # refused before any simulation
+    # with datasets of one's own the paper's method is the default: the line says what to add
+    data = ["--train", str(tmp_path / "a"), "--test", str(tmp_path / "b")]
+    assert main(["experiment", *data, "-o", str(tmp_path / "xp"), "--keypoint-loss", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "add --redirect-eyes" in err[0], err
+    assert not (tmp_path / "xp").exists()
+    # the library's own check names its settings, not the command's options
+    from gazeaug.experiment import ExperimentSettings
+    from gazeaug.train import TrainSettings
+
+    with pytest.raises(GazeAugError, match="expected eyes='redirect', got eyes='keep'"):
+        ExperimentSettings(train=TrainSettings(keypoint_loss_weight=1.0), eyes="keep")
