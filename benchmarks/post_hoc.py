@@ -10,6 +10,7 @@ degrees over the rows of ``errors.csv``:
   shifted so that their mean is the rig's mean gaze, read as the mean (pitch, yaw) label of the
   set's augmented rows (those drawn for the rig: finite ``sampled_yaw_pitch``). An unlabeled
   self-calibration: a person who looks about the rig's targets for a while has that mean gaze;
+  ``person_pitch_shift_to_rig_mean``: the same for the pitch alone (the yaw as the model gave it);
 - ``person_shift_to_test_mean``: the same to the test set's pooled mean label (uses the labels,
   pooled over every person);
 - ``person_offsets_removed`` (an oracle, :func:`gazeaug.metrics.subject_offsets_removed_error_deg`):
@@ -100,7 +101,10 @@ def main() -> int:
         except (OSError, KeyError, ValueError) as exc:
             ap.exit(2, f"{ap.prog}: {args.rig_set}: not an augmented set with drawn rows ({exc})\n")
         out["rig_mean_gaze_deg"] = [round(float(v), 2) for v in np.degrees(rig)]
-        out["person_shift_to_rig_mean"] = mean_error_deg(shift_each_person(pred, subjects, rig), true)
+        shifted = shift_each_person(pred, subjects, rig)
+        out["person_shift_to_rig_mean"] = mean_error_deg(shifted, true)
+        shifted[:, 1] = pred[:, 1]
+        out["person_pitch_shift_to_rig_mean"] = mean_error_deg(shifted, true)
     print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in out.items()}))
     return 0
 
