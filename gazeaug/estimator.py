@@ -198,6 +198,11 @@ def _load_onnx(p: Path) -> GazeEstimator:
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         session = ort.InferenceSession(raw, sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
+        if "external data" in str(exc).lower():  # the session is built from the bytes read: one file only
+            raise GazeAugError(
+                f"{p}: an ONNX model whose weights lie in other files (external data) is not supported: "
+                "give a single-file model (gazeaug export writes one)"
+            ) from exc
         raise GazeAugError(f"{p}: not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from exc
     props = dict(session.get_modelmeta().custom_metadata_map)
     names = sorted(i.name for i in session.get_inputs())

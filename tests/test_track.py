@@ -117,6 +117,17 @@ def test_track_onnx_equals_pytorch(model, tmp_path):
     left, right = (rng.integers(0, 256, (3, 36, 60, 3), dtype=np.uint8) for _ in range(2))
     hp = rng.normal(0, 0.3, (3, 2))
     np.testing.assert_allclose(a.predict(left, right, hp), b.predict(left, right, hp), atol=1e-4)
+    # the same model with its weights in another file (external data): the estimator reads one file's
+    # bytes (its digest ties calibrations to them), so it is refused in one line that says so
+    import onnx
+
+    from gazeaug.errors import GazeAugError
+
+    onnx.save_model(
+        onnx.load(tmp_path / "m.onnx"), tmp_path / "ext.onnx", save_as_external_data=True, location="ext.data"
+    )
+    with pytest.raises(GazeAugError, match="external data"):
+        load_estimator(tmp_path / "ext.onnx")
 
 
 def test_evaluate_and_predict_take_the_onnx_export_and_agree_with_the_pt(model, faces_dir, tmp_path, capsys):
