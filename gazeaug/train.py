@@ -499,6 +499,51 @@ LOADER = "torch.load(weights_only=True)"
 FILE_SHA256_KEY = "file_sha256"
 
 
+#: Callables a PyTorch file of tensors and plain values names (torch's own rebuild functions and
+#: storages, an ordered dict): any other in a file is a crafted pickle's.
+_TORCH_PICKLE_NAMES = ("torch.", "collections.OrderedDict")
+
+
+def _pickle_outline(raw: bytes) -> tuple[int | None, list[str]]:
+    """The pickle protocol and the callables (``"module.name"``) a ``.pt`` file's pickle names.
+
+    Read with :mod:`pickletools`, which parses the opcodes and builds nothing. ``raw``: the
+    file's bytes, torch's zip format (its ``*/data.pkl``) or a bare pickle. Returns
+    ``(None, [])`` when no pickle can be read from it; the names read before a damaged opcode.
+    """
+    import pickletools
+    import zipfile
+
+    data = raw
+    if raw[:4] == b"PK\x03\x04":
+        try:
+            with zipfile.ZipFile(io.BytesIO(raw)) as zf:
+                member = next((n for n in zf.namelist() if n.endswith("data.pkl")), None)
+                if member is None:
+                    return None, []
+                data = zf.read(member)
+        except (zipfile.BadZipFile, OSError, EOFError, ValueError, KeyError):
+            return None, []
+    protocol: int | None = None
+    names: list[str] = []
+    strings: list[str] = []  # the strings pushed so far: STACK_GLOBAL takes its module and name from them
+    try:
+        for op, arg, _ in pickletools.genops(data):
+            if op.name == "PROTO" and isinstance(arg, int):
+                protocol = arg
+            elif op.name in ("GLOBAL", "INST"):
+                names.append(str(arg))
+            elif op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                names.append(f"{strings[-2]} {strings[-1]}")
+            elif isinstance(arg, str):
+                strings.append(arg)
+            if op.name == "STOP":
+                break
+    except Exception:  # noqa: BLE001 - a damaged stream: what was read so far
+        pass
+    return protocol, [n.replace(" ", ".", 1) for n in names]
+
+
 def _load_plain(path: Path, what: str) -> dict[str, Any]:
     """A ``.pt`` file's top-level dict, read so that no code in the file can run.
 
@@ -532,6 +577,20 @@ def _load_plain(path: Path, what: str) -> dict[str, Any]:
             raise GazeAugError(
                 f"{path}: not a {what}: it holds objects other than tensors and plain values "
                 f"({globals_[0]}); refused without running them"
+            ) from exc
+        # torch's safe unpickler stops at opcodes it does not know (pickle protocols 4 and 5) before it
+        # names any callable: read the opcodes (pickletools only parses) to say which case this is
+        protocol, names = _pickle_outline(raw)
+        foreign = [n for n in names if not n.startswith(_TORCH_PICKLE_NAMES)]
+        if foreign:
+            raise GazeAugError(
+                f"{path}: not a {what}: it holds objects other than tensors and plain values "
+                f"({foreign[0]}); refused without running them"
+            ) from exc
+        if protocol is not None and protocol > 2:
+            raise GazeAugError(
+                f"{path}: not a {what} the safe loader can read (pickle protocol {protocol}; "
+                "save it with torch.save's default protocol)"
             ) from exc
         raise GazeAugError(f"{path}: not a {what} (truncated, damaged or not a PyTorch file)") from exc
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for damaged files

@@ -110,14 +110,16 @@ def _crafted_files(folder: Path) -> dict[str, tuple[Path, Path]]:
     import torch
 
     out = {}
-    for name in ("zip", "legacy"):
+    # protocol 4 too: torch's safe unpickler stops at its FRAME opcode before it sees the callable
+    for name in ("zip", "legacy", "zip4", "legacy4"):
         marker = folder / f"marker_{name}"
         path = folder / f"crafted_{name}.pt"
         obj = {"format": "gazeaug-model", "state_dict": {}, "payload": _Payload(marker)}
-        if name == "zip":
-            torch.save(obj, path)
+        protocol = 4 if name.endswith("4") else 2
+        if name.startswith("zip"):
+            torch.save(obj, path, pickle_protocol=protocol)
         else:
-            path.write_bytes(pickle.dumps(obj, protocol=2))
+            path.write_bytes(pickle.dumps(obj, protocol=protocol))
         out[name] = (path, marker)
     return out
 
@@ -133,6 +135,25 @@ def test_the_crafted_files_do_carry_code(tmp_path):
         except RuntimeError:
             pass
         assert marker.read_text() == "ran"
+
+
+@torch_needed
+def test_a_crafted_file_is_named_as_such_whatever_its_pickle_protocol(tmp_path):
+    import torch
+
+    from gazeaug.errors import GazeAugError
+    from gazeaug.train import load_model
+
+    for name, (path, marker) in _crafted_files(tmp_path).items():
+        with pytest.raises(GazeAugError, match=r"refused without running them") as info:
+            load_model(path)
+        assert "exec" in str(info.value), (name, str(info.value))  # the callable it names
+        assert not marker.exists(), name
+    # a file of plain values saved with protocol 4: no callable of its own, the protocol is named
+    plain = tmp_path / "plain4.pt"
+    torch.save({"format": "gazeaug-model", "state_dict": {"w": torch.zeros(2)}}, plain, pickle_protocol=4)
+    with pytest.raises(GazeAugError, match=r"pickle protocol 4"):
+        load_model(plain)
 
 
 @torch_needed
