@@ -502,6 +502,8 @@ FILE_SHA256_KEY = "file_sha256"
 #: Callables a PyTorch file of tensors and plain values names (torch's own rebuild functions and
 #: storages, an ordered dict): any other in a file is a crafted pickle's.
 _TORCH_PICKLE_NAMES = ("torch.", "collections.OrderedDict")
+#: The largest pickle inside a ``.pt`` archive that :func:`_pickle_outline` inflates, bytes.
+_MAX_PICKLE_BYTES = 64 * 2**20
 
 
 def _pickle_outline(raw: bytes) -> tuple[int | None, list[str]]:
@@ -519,7 +521,9 @@ def _pickle_outline(raw: bytes) -> tuple[int | None, list[str]]:
         try:
             with zipfile.ZipFile(io.BytesIO(raw)) as zf:
                 member = next((n for n in zf.namelist() if n.endswith("data.pkl")), None)
-                if member is None:
+                # the pickle of a model holds names and plain values (the tensors are other members):
+                # a larger one is not read (a crafted archive could inflate to any size)
+                if member is None or zf.getinfo(member).file_size > _MAX_PICKLE_BYTES:
                     return None, []
                 data = zf.read(member)
         except (zipfile.BadZipFile, OSError, EOFError, ValueError, KeyError):
