@@ -83,6 +83,9 @@ def to_rgb_uint8(image: NDArray[np.generic], name: str = "image") -> NDArray[np.
 #: photos and well below OpenCV's own limit of 2^30 pixels (which it reports
 #: as an exception from inside ``cv2.imdecode``).
 MAX_IMAGE_PIXELS = 100_000_000
+#: Images with a longer side than this are refused from their header too: MediaPipe's detector
+#: aborts the whole process (SIGABRT, no Python error) on a side of 32767 px or more.
+MAX_IMAGE_SIDE = 16384
 
 
 def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
@@ -91,7 +94,8 @@ def load_image_rgb(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     Grey, RGBA, palette and 16-bit files are converted (see :func:`to_rgb_uint8`).
     The image's size is read from its header first (PNG ``IHDR``, JPEG ``SOF``,
     other formats through Pillow when it is installed): images above
-    :data:`MAX_IMAGE_PIXELS` are refused without being decoded.
+    :data:`MAX_IMAGE_PIXELS`, or with a side above :data:`MAX_IMAGE_SIDE`, are refused without
+    being decoded.
 
     The decoders' own lines on stderr (libpng's "iCCP: known incorrect sRGB
     profile", libjpeg's "Corrupt JPEG data") are silenced: a problem that
@@ -153,11 +157,19 @@ def _read_bytes(p: Path) -> NDArray[np.uint8]:
 
 
 def _check_pixel_count(p: Path, width: int, height: int) -> None:
-    """Refuse an image of ``width`` x ``height`` pixels above :data:`MAX_IMAGE_PIXELS`."""
+    """Refuse an image of ``width`` x ``height`` pixels too large to read.
+
+    Above :data:`MAX_IMAGE_PIXELS`, or with a side above :data:`MAX_IMAGE_SIDE`.
+    """
     if width * height > MAX_IMAGE_PIXELS:
         raise InputError(
             f"{p}: the image is {width}x{height} pixels ({width * height / 1e6:.1f} megapixels); "
             f"images above {MAX_IMAGE_PIXELS / 1e6:g} megapixels are refused (downscale it first)"
+        )
+    if max(width, height) > MAX_IMAGE_SIDE:
+        raise InputError(
+            f"{p}: the image is {width}x{height} pixels; a side above {MAX_IMAGE_SIDE} px is refused "
+            "(downscale it first)"
         )
 
 
@@ -237,13 +249,40 @@ def _pillow_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
 
 
 def _looks_complete(data: NDArray[np.uint8]) -> bool:
-    """True unless a JPEG or PNG visibly lacks its end marker (OpenCV decodes truncated files silently)."""
-    head = data[:8].tobytes()
-    tail = data[-32:].tobytes()
-    if head[:3] == b"\xff\xd8\xff":  # JPEG: must end with EOI (allow trailing padding)
-        return b"\xff\xd9" in tail
-    if head == b"\x89PNG\r\n\x1a\n":  # PNG: must end with the IEND chunk
-        return b"IEND" in tail
+    """True unless a JPEG or PNG visibly lacks its end (OpenCV decodes truncated files silently).
+
+    Bytes after the end are allowed (a phone's "motion photo" appends a video to its JPEG).
+    JPEG: the segments are walked from SOI to the first SOS (so that an EXIF thumbnail's own EOI,
+    inside APP1, does not count), then an EOI must follow. PNG: the chunks are walked by their
+    lengths up to IEND, which must lie inside the file.
+    """
+    raw = data.tobytes()
+    if raw[:3] == b"\xff\xd8\xff":
+        i = 2
+        while i + 4 <= len(raw):
+            if raw[i] != 0xFF:
+                return True  # not a layout this walk knows: leave it to the decoder
+            marker = raw[i + 1]
+            if marker == 0xFF:  # fill byte before a marker
+                i += 1
+                continue
+            if marker == 0xDA:  # SOS: the entropy-coded data follows, then (more scans and) EOI
+                return raw.find(b"\xff\xd9", i) >= 0
+            if marker == 0xD9:  # EOI before any scan
+                return True
+            if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+                i += 2
+                continue
+            i += 2 + int.from_bytes(raw[i + 2 : i + 4], "big")
+        return False  # the file ends inside its headers
+    if raw[:8] == b"\x89PNG\r\n\x1a\n":
+        i = 8
+        while i + 8 <= len(raw):
+            length, kind = int.from_bytes(raw[i : i + 4], "big"), raw[i + 4 : i + 8]
+            if kind == b"IEND":
+                return True
+            i += 12 + length  # length, type, data, CRC
+        return False
     return True
 
 

@@ -9,6 +9,7 @@ sizes in pixels), not read back from the code.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import struct
@@ -96,6 +97,43 @@ def test_a_50000x50000_png_is_refused_from_its_header(tmp_path, capsys):
     rc, err = _gazeaug_cli(["normalize", str(p), "-o", str(tmp_path / "out.npz")], capsys)
     assert rc == 2
     _one_error_line(err, "50000x50000")
+
+
+def test_a_long_thin_image_is_refused_from_its_header(tmp_path, capsys):
+    from facemesh.io import MAX_IMAGE_SIDE
+
+    # 32767 x 32 is 1 megapixel, yet MediaPipe's detector aborts the process on such a side (SIGABRT)
+    p = tmp_path / "strip.png"
+    _write_black_png(p, 32767, 32)
+    assert MAX_IMAGE_SIDE < 32767
+    rc, err = _facemesh_cli(["build", str(p), "-o", str(tmp_path / "out.glb")], capsys)
+    assert rc == 2
+    _one_error_line(err, f"32767x32 pixels; a side above {MAX_IMAGE_SIDE} px is refused")
+    assert not (tmp_path / "out.glb").exists()
+
+
+def test_bytes_after_the_end_marker_are_not_a_truncation(tmp_path):
+    # a phone's "motion photo" appends a video after the JPEG's EOI; some writers pad a PNG after IEND
+    face_bgr = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    ok, jpg = cv2.imencode(".jpg", face_bgr)
+    ok2, png = cv2.imencode(".png", face_bgr)
+    assert ok and ok2
+    for name, data in (("motion.jpg", jpg.tobytes() + b"ftypmp42" * 512), ("padded.png", png.tobytes() + bytes(100))):
+        (tmp_path / name).write_bytes(data)
+        assert load_image_rgb(tmp_path / name).shape == face_bgr.shape, name
+    # a JPEG cut inside its scan is still refused, though its EXIF thumbnail (before the scan) has an EOI
+    from PIL import Image
+
+    thumb = io.BytesIO()
+    Image.fromarray(face_bgr[..., ::-1]).resize((32, 32)).save(thumb, "JPEG")
+    app1 = b"Exif\x00\x00" + thumb.getvalue()  # an APP1 segment that holds a whole JPEG, EOI included
+    whole = jpg.tobytes()
+    with_thumb = whole[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + whole[2:]
+    (tmp_path / "thumb.jpg").write_bytes(with_thumb)
+    assert load_image_rgb(tmp_path / "thumb.jpg").shape == face_bgr.shape
+    (tmp_path / "cut.jpg").write_bytes(with_thumb[: len(with_thumb) - len(whole) // 2])
+    with pytest.raises(InputError, match="truncated"):
+        load_image_rgb(tmp_path / "cut.jpg")
 
 
 def test_an_image_within_opencv_limits_but_above_ours_is_not_decoded(tmp_path, monkeypatch):
