@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from .face_models import KEYPOINTS
-from .types import FaceMeshError
+from .types import FaceMeshError, InputError
 
 __all__ = [
     "main",
@@ -234,6 +234,9 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_output_file(args.output, (".glb",), what="mesh (.glb)")
         if args.preview is not None:
             check_picture_path(args.preview, what="preview picture")
+            same = args.image is not None and args.preview.exists() and args.image.exists()
+            if same and args.preview.resolve() == args.image.resolve():
+                raise InputError(f"{args.preview}: the preview would replace the input photo; choose another --preview")
     elif args.command == "render":
         check_picture_path(args.output)
     elif args.command == "model":

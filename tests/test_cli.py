@@ -137,6 +137,16 @@ def test_missing_file(tmp_path, capsys):
     _bad(tmp_path, capsys, [str(tmp_path / "nope.jpg")], "nope.jpg: no such file")
 
 
+def test_the_preview_never_replaces_the_input_photo(tmp_path, capsys, face_bgr):
+    photo = tmp_path / "me.png"
+    cv2.imwrite(str(photo), face_bgr)
+    before = photo.read_bytes()
+    (tmp_path / "link.png").symlink_to(photo)  # the same file under another name
+    for preview in (photo, tmp_path / "link.png"):
+        _bad(tmp_path, capsys, [str(photo), "--preview", str(preview)], "the preview would replace the input photo")
+        assert photo.read_bytes() == before
+
+
 def test_not_an_image(tmp_path, capsys):
     p = tmp_path / "text.jpg"
     p.write_text("hello, I am not a picture")
