@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 from ._native import native_stderr_silenced
 from .conventions import gltf_to_opencv_points, opencv_to_gltf_directions, opencv_to_gltf_points
 from .geometry import vertex_normals
-from .io import _check_pixel_count, _header_size, atomic_write
+from .io import _check_pixel_count, _header_size, atomic_write, check_input_file
 from .types import CameraIntrinsics, FaceKeypoints, FaceLandmarks, FaceMesh, HeadPose, InputError
 
 __all__ = ["FORMAT_VERSION", "save_glb", "load_glb", "gltf_bytes", "parse_glb"]
@@ -542,8 +542,7 @@ def load_glb(path: str | os.PathLike[str]) -> FaceMesh:
     p = Path(path)
     name = str(p)
     try:
-        if not p.is_file():
-            raise InputError(f"{name}: no such file")
+        check_input_file(p)  # "no such file", or "not a file" for a folder
         data = p.read_bytes()
     except OSError as exc:
         raise InputError(f"{name}: cannot read the file ({exc.strerror or exc.__class__.__name__})") from exc
