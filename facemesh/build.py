@@ -84,12 +84,22 @@ def load_input(
         InputError: unreadable image or calibration, or a calibration for another image size.
     """
     from .camera import camera_for_image
-    from .io import load_image_rgb
+    from .io import EXIF_ORIENTATIONS, exif_orientation, load_image_rgb
 
     if path is None:
         image, source = sample_image(), SAMPLE_NAME
     else:
         image, source = load_image_rgb(path), str(path)
+        orientation = exif_orientation(path)
+        if orientation != 1:
+            import warnings
+
+            warnings.warn(
+                f"{path}: EXIF orientation {orientation} (viewers show it {EXIF_ORIENTATIONS[orientation]}) "
+                "is not applied: the image is read as stored and every result is in the stored image's "
+                "frame (turn the file upright first to work upright)",
+                stacklevel=2,
+            )
     h, w = image.shape[:2]
     return image, camera_for_image(camera_path or None, w, h), source
 

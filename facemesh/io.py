@@ -248,6 +248,66 @@ def _pillow_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
     return int(w), int(h)
 
 
+#: EXIF orientation values (TIFF tag 0x0112): how a viewer shows the stored image, to show it upright.
+EXIF_ORIENTATIONS = {
+    1: "as stored",
+    2: "mirrored left-right",
+    3: "turned 180 deg",
+    4: "mirrored top-bottom",
+    5: "transposed",
+    6: "turned 90 deg clockwise",
+    7: "transversed",
+    8: "turned 90 deg counter-clockwise",
+}
+
+
+def exif_orientation(path: str | os.PathLike[str]) -> int:
+    """A JPEG file's EXIF orientation (1-8, :data:`EXIF_ORIENTATIONS`); 1 when it has none.
+
+    :func:`load_image_rgb` does not apply it: an image is read as stored, so that a camera
+    calibration (made in the sensor's orientation) and every pixel coordinate stay in one frame.
+    Read from the file's APP1 segment only (nothing is decoded); unreadable or odd EXIF gives 1.
+    """
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(1 << 18)  # EXIF lies in the first 64 kB of a JPEG
+    except OSError:
+        return 1
+    if raw[:2] != b"\xff\xd8":
+        return 1
+    i = 2
+    while i + 4 <= len(raw) and raw[i] == 0xFF:
+        marker, length = raw[i + 1], int.from_bytes(raw[i + 2 : i + 4], "big")
+        if marker == 0xDA:  # the scan: no EXIF after it
+            return 1
+        if marker == 0xE1 and raw[i + 4 : i + 10] == b"Exif\x00\x00":
+            return _tiff_orientation(raw[i + 10 : i + 2 + length])
+        i += 2 + length
+    return 1
+
+
+def _tiff_orientation(tiff: bytes) -> int:
+    """The orientation tag (0x0112) of a TIFF header's first IFD; 1 when absent or unreadable."""
+    order = {b"II": "little", b"MM": "big"}.get(tiff[:2])
+    if order is None or len(tiff) < 8:
+        return 1
+
+    def num(at: int, size: int) -> int:
+        return int.from_bytes(tiff[at : at + size], order)  # type: ignore[arg-type]
+
+    ifd = num(4, 4)
+    if ifd + 2 > len(tiff):
+        return 1
+    for k in range(num(ifd, 2)):
+        entry = ifd + 2 + 12 * k
+        if entry + 12 > len(tiff):
+            return 1
+        if num(entry, 2) == 0x0112 and num(entry + 2, 2) == 3:  # SHORT: its value in the entry itself
+            value = num(entry + 8, 2)
+            return value if value in EXIF_ORIENTATIONS else 1
+    return 1
+
+
 def _looks_complete(data: NDArray[np.uint8]) -> bool:
     """True unless a JPEG or PNG visibly lacks its end (OpenCV decodes truncated files silently).
 

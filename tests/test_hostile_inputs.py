@@ -136,6 +136,41 @@ def test_bytes_after_the_end_marker_are_not_a_truncation(tmp_path):
         load_image_rgb(tmp_path / "cut.jpg")
 
 
+def _jpeg_with_orientation(path: Path, orientation: int, order: str) -> bytes:
+    """A JPEG whose APP1 holds a hand-made TIFF header: IFD0 with one entry, tag 0x0112 (SHORT)."""
+    ok, jpg = cv2.imencode(".jpg", np.full((40, 60, 3), 120, np.uint8))
+    assert ok
+    e = "<" if order == "II" else ">"
+    tiff = order.encode() + struct.pack(e + "HI", 42, 8) + struct.pack(e + "H", 1)
+    tiff += struct.pack(e + "HHIH2x", 0x0112, 3, 1, orientation) + struct.pack(e + "I", 0)
+    app1 = b"Exif\x00\x00" + tiff
+    data = jpg.tobytes()[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpg.tobytes()[2:]
+    path.write_bytes(data)
+    return data
+
+
+def test_an_exif_orientation_is_read_and_named_not_applied(tmp_path):
+    from facemesh.build import load_input
+    from facemesh.io import exif_orientation
+
+    for order in ("II", "MM"):  # little- and big-endian TIFF headers
+        for value in (1, 3, 6, 8):
+            p = tmp_path / f"o{value}{order}.jpg"
+            _jpeg_with_orientation(p, value, order)
+            assert exif_orientation(p) == value, (order, value)
+    assert exif_orientation(tmp_path / "nope.jpg") == 1
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        image, _, _ = load_input(tmp_path / "o6MM.jpg", None)
+    assert image.shape[:2] == (40, 60)  # read as stored, not turned
+    said = [str(w.message) for w in seen if "EXIF orientation 6" in str(w.message)]
+    assert len(said) == 1 and "not applied" in said[0] and "turned 90 deg clockwise" in said[0], said
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        load_input(tmp_path / "o1II.jpg", None)
+    assert not [w for w in seen if "EXIF" in str(w.message)]
+
+
 def test_an_image_within_opencv_limits_but_above_ours_is_not_decoded(tmp_path, monkeypatch):
     from facemesh.io import MAX_IMAGE_PIXELS
 
