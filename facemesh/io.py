@@ -43,7 +43,7 @@ def to_rgb_uint8(image: NDArray[np.generic], name: str = "image") -> NDArray[np.
 
     Args:
         image: (H, W) grey, (H, W, 1) grey, (H, W, 3) RGB or (H, W, 4) RGBA;
-            uint8, uint16 (scaled by 1/257), bool, or float in [0, 1].
+            uint8, uint16 (scaled by 1/257), bool, or float in [0, 1] (above 1.001 refused).
         name: what to call the image in error messages.
 
     Returns:
@@ -68,6 +68,9 @@ def to_rgb_uint8(image: NDArray[np.generic], name: str = "image") -> NDArray[np.
     elif np.issubdtype(arr.dtype, np.floating):
         if not np.all(np.isfinite(arr)):
             raise InputError(f"{name}: contains NaN or infinite values")
+        top = float(arr.max()) if arr.size else 0.0
+        if top > 1.001:  # a float image of 0-255 levels would be clipped to white
+            raise InputError(f"{name}: float pixel values up to {top:g}; expected levels from 0 to 1")
         out = np.round(np.clip(arr, 0.0, 1.0) * 255.0).astype(np.uint8)
     else:
         raise InputError(f"{name}: unsupported pixel type {arr.dtype}")
@@ -407,7 +410,10 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, target)
+        try:
+            os.replace(tmp, target)
+        except OSError as exc:  # name the file asked for, not the temporary one beside it
+            raise OSError(exc.errno, exc.strerror, str(target)) from exc
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

@@ -780,3 +780,26 @@ def test_stderr_is_restored_when_creating_the_graph_fails(capfd, monkeypatch):
     err = capfd.readouterr().err
     assert "visible after the failure" in err and "python stderr visible" in err
     assert "hidden native noise" not in err
+
+
+def test_a_float_image_of_0_to_255_levels_is_refused_not_whitened(tmp_path):
+    from facemesh.io import to_rgb_uint8
+
+    levels = np.full((40, 60, 3), 128.0, np.float32)
+    with pytest.raises(InputError, match="float pixel values up to 128; expected levels from 0 to 1"):
+        to_rgb_uint8(levels, name="f.tiff")
+    assert to_rgb_uint8(levels / 255.0, name="f.tiff")[0, 0, 0] == 128  # 0-1 levels as before
+
+
+def test_a_failed_rename_names_the_file_asked_for(tmp_path):
+    from facemesh.io import atomic_write
+
+    target = tmp_path / "out.bin"
+    target.mkdir()
+    (target / "keep").write_text("x")  # a non-empty folder: the rename onto it fails
+    with pytest.raises(OSError) as info:
+        with atomic_write(target) as fh:
+            fh.write(b"data")
+    assert info.value.filename == str(target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]  # no temporary file left
+    assert (target / "keep").read_text() == "x"
