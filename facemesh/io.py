@@ -273,7 +273,7 @@ def exif_orientation(path: str | os.PathLike[str]) -> int:
     """
     try:
         with open(path, "rb") as fh:
-            raw = fh.read(1 << 18)  # EXIF lies in the first 64 kB of a JPEG
+            raw = fh.read(1 << 18)  # the APP segments come first; EXIF's APP1 holds at most 64 kB
     except OSError:
         return 1
     if raw[:2] != b"\xff\xd8":
