@@ -197,34 +197,54 @@ def _header_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
     return _pillow_size(data, p)
 
 
-def _jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
-    """(width, height) from a JPEG's SOF segment, walking the segments before it; None if not found."""
-    buf = memoryview(np.ascontiguousarray(data).data)  # indexing gives ints; nothing is copied
+#: What :func:`_jpeg_segments` yields for a byte where a marker should start and none does.
+_JPEG_MALFORMED = -1
+
+
+def _jpeg_segments(buf: bytes | memoryview) -> Iterator[tuple[int, int, int]]:
+    """The markers of a JPEG's headers, in order: ``(offset, marker, length)``.
+
+    Walked from just after SOI; ``length`` is the segment's length field (0 for markers without
+    one: TEM, RSTn, SOI). Stops after yielding SOS (0xDA, the entropy-coded data follows) or EOI
+    (0xD9), after yielding ``_JPEG_MALFORMED`` where no marker starts (or a length below 2), and
+    silently where the data ends inside the headers (a truncated file).
+    """
     n = len(buf)
     i = 2
     while i + 4 <= n:
         if buf[i] != 0xFF:
-            return None
+            yield i, _JPEG_MALFORMED, 0
+            return
         marker = buf[i + 1]
         if marker == 0xFF:  # fill byte
             i += 1
             continue
         if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
+            yield i, marker, 0
             i += 2
             continue
-        if marker in (0xD9, 0xDA):  # end of image, or scan data before any frame header
-            return None
+        if marker in (0xD9, 0xDA):
+            yield i, marker, 0
+            return
         length = (buf[i + 2] << 8) | buf[i + 3]
+        if length < 2:
+            yield i, _JPEG_MALFORMED, 0
+            return
+        yield i, marker, length
+        i += 2 + length
+
+
+def _jpeg_size(data: NDArray[np.uint8]) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's SOF segment, walking the segments before it; None if not found."""
+    buf = memoryview(np.ascontiguousarray(data).data)  # indexing gives ints; nothing is copied
+    for i, marker, length in _jpeg_segments(buf):
         if marker in _JPEG_SOF:
-            if i + 9 > n or length < 7:
+            if i + 9 > len(buf) or length < 7:
                 return None
             height = (buf[i + 5] << 8) | buf[i + 6]
             width = (buf[i + 7] << 8) | buf[i + 8]
             return (width, height) if width and height else None  # height 0: given later (DNL); decode
-        if length < 2:
-            return None
-        i += 2 + length
-    return None
+    return None  # end of image, or scan data before any frame header, or a malformed header
 
 
 def _pillow_size(data: NDArray[np.uint8], p: Path) -> tuple[int, int] | None:
@@ -278,15 +298,10 @@ def exif_orientation(path: str | os.PathLike[str]) -> int:
         return 1
     if raw[:2] != b"\xff\xd8":
         return 1
-    i = 2
-    while i + 4 <= len(raw) and raw[i] == 0xFF:
-        marker, length = raw[i + 1], int.from_bytes(raw[i + 2 : i + 4], "big")
-        if marker == 0xDA:  # the scan: no EXIF after it
-            return 1
+    for i, marker, length in _jpeg_segments(raw):
         if marker == 0xE1 and raw[i + 4 : i + 10] == b"Exif\x00\x00":
             return _tiff_orientation(raw[i + 10 : i + 2 + length])
-        i += 2 + length
-    return 1
+    return 1  # no EXIF before the scan
 
 
 def _tiff_orientation(tiff: bytes) -> int:
@@ -319,32 +334,20 @@ def _looks_complete(data: NDArray[np.uint8]) -> bool:
     inside APP1, does not count), then an EOI must follow. PNG: the chunks are walked by their
     lengths up to IEND, which must lie inside the file.
     """
-    raw = data.tobytes()
-    if raw[:3] == b"\xff\xd8\xff":
-        i = 2
-        while i + 4 <= len(raw):
-            if raw[i] != 0xFF:
-                return True  # not a layout this walk knows: leave it to the decoder
-            marker = raw[i + 1]
-            if marker == 0xFF:  # fill byte before a marker
-                i += 1
-                continue
+    buf = memoryview(np.ascontiguousarray(data).data)  # indexing gives ints; nothing is copied
+    if bytes(buf[:3]) == b"\xff\xd8\xff":
+        for i, marker, _ in _jpeg_segments(buf):
+            if marker in (_JPEG_MALFORMED, 0xD9):  # a layout this walk does not know: the decoder decides
+                return True
             if marker == 0xDA:  # SOS: the entropy-coded data follows, then (more scans and) EOI
-                return raw.find(b"\xff\xd9", i) >= 0
-            if marker == 0xD9:  # EOI before any scan
-                return True
-            if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
-                i += 2
-                continue
-            i += 2 + int.from_bytes(raw[i + 2 : i + 4], "big")
+                return data[i:].tobytes().find(b"\xff\xd9") >= 0
         return False  # the file ends inside its headers
-    if raw[:8] == b"\x89PNG\r\n\x1a\n":
+    if bytes(buf[:8]) == b"\x89PNG\r\n\x1a\n":
         i = 8
-        while i + 8 <= len(raw):
-            length, kind = int.from_bytes(raw[i : i + 4], "big"), raw[i + 4 : i + 8]
-            if kind == b"IEND":
+        while i + 8 <= len(buf):
+            if bytes(buf[i + 4 : i + 8]) == b"IEND":
                 return True
-            i += 12 + length  # length, type, data, CRC
+            i += 12 + int.from_bytes(buf[i : i + 4], "big")  # length, type, data, CRC
         return False
     return True
 
