@@ -576,20 +576,16 @@ def _load_plain(path: Path, what: str) -> dict[str, Any]:
             obj = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         lines = [ln.strip() for ln in str(exc).splitlines()]
-        globals_ = [ln for ln in lines if "GLOBAL" in ln or "Unsupported global" in ln]
-        if globals_:  # the file names a Python callable: a crafted pickle, refused before it is built
+        named = [ln for ln in lines if "GLOBAL" in ln or "Unsupported global" in ln]
+        protocol = None
+        if not named:  # torch's safe unpickler stops at opcodes it does not know (pickle protocols 4
+            # and 5) before it names any callable: read the opcodes (pickletools only parses)
+            protocol, names = _pickle_outline(raw)
+            named = [n for n in names if not n.startswith(_TORCH_PICKLE_NAMES)]
+        if named:  # the file names a Python callable: a crafted pickle, refused before it is built
             raise GazeAugError(
                 f"{path}: not a {what}: it holds objects other than tensors and plain values "
-                f"({globals_[0]}); refused without running them"
-            ) from exc
-        # torch's safe unpickler stops at opcodes it does not know (pickle protocols 4 and 5) before it
-        # names any callable: read the opcodes (pickletools only parses) to say which case this is
-        protocol, names = _pickle_outline(raw)
-        foreign = [n for n in names if not n.startswith(_TORCH_PICKLE_NAMES)]
-        if foreign:
-            raise GazeAugError(
-                f"{path}: not a {what}: it holds objects other than tensors and plain values "
-                f"({foreign[0]}); refused without running them"
+                f"({named[0]}); refused without running them"
             ) from exc
         if protocol is not None and protocol > 2:
             raise GazeAugError(
