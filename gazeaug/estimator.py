@@ -175,6 +175,12 @@ def load_estimator(path: str | Path, device: str = "cpu", *, mirror_average: boo
     return GazeEstimator(p, "pytorch", norm, str(meta["input_mode"]), meta, model, str(meta[FILE_SHA256_KEY]))
 
 
+#: The bytes of a TensorProto's external_data entry keyed "location" (field 1, length 8), which
+#: every tensor stored outside the .onnx file has: the mark of external data, found without
+#: parsing the model (only a tensor or value named exactly "location" encodes the same bytes).
+_EXTERNAL_DATA_KEY = b"\n\x08location"
+
+
 def _load_onnx(p: Path) -> GazeEstimator:
     from .models.preprocess import check_input_mode
 
@@ -188,6 +194,13 @@ def _load_onnx(p: Path) -> GazeEstimator:
         raw = p.read_bytes()
     except OSError as exc:
         raise GazeAugError(f"{p}: cannot read the model file ({exc.strerror or exc.__class__.__name__})") from exc
+    if _EXTERNAL_DATA_KEY in raw:
+        # weights in other files: a session built from bytes would look for them in the working
+        # directory, not beside the model, and the digest would not cover them
+        raise GazeAugError(
+            f"{p}: an ONNX model whose weights lie in other files (external data) is not supported: "
+            "give a single-file model (gazeaug export writes one)"
+        )
     try:
         opts = ort.SessionOptions()
         opts.log_severity_level = 3
@@ -198,11 +211,6 @@ def _load_onnx(p: Path) -> GazeEstimator:
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         session = ort.InferenceSession(raw, sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own exception types
-        if "external data" in str(exc).lower():  # the session is built from the bytes read: one file only
-            raise GazeAugError(
-                f"{p}: an ONNX model whose weights lie in other files (external data) is not supported: "
-                "give a single-file model (gazeaug export writes one)"
-            ) from exc
         raise GazeAugError(f"{p}: not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from exc
     props = dict(session.get_modelmeta().custom_metadata_map)
     names = sorted(i.name for i in session.get_inputs())

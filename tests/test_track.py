@@ -102,7 +102,7 @@ def test_track_video_with_a_rig(model, video, tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["frames"] == 24
 
 
-def test_track_onnx_equals_pytorch(model, tmp_path):
+def test_track_onnx_equals_pytorch(model, tmp_path, monkeypatch):
     pytest.importorskip("onnx")
     pytest.importorskip("onnxruntime")
     from gazeaug.estimator import load_estimator
@@ -128,6 +128,11 @@ def test_track_onnx_equals_pytorch(model, tmp_path):
     )
     with pytest.raises(GazeAugError, match="external data"):
         load_estimator(tmp_path / "ext.onnx")
+    # also where the weights file lies in the working directory (a session built from bytes would
+    # read it from there, whatever the model's folder)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(GazeAugError, match="external data"):
+        load_estimator("ext.onnx")
 
 
 def test_evaluate_and_predict_take_the_onnx_export_and_agree_with_the_pt(model, faces_dir, tmp_path, capsys):
